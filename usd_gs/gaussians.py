@@ -1,0 +1,347 @@
+"""The Gaussian set: one structure of arrays for N 3D Gaussians.
+
+Conventions (shared/DESIGN.md section 1):
+
+- ``positions``    (N, 3) float32, centres (world or prim-local space, see ``space``).
+- ``orientations`` (N, 4) float32, unit quaternions ordered (w, x, y, z).
+- ``scales``       (N, 3) float32, per-axis standard deviation (linear sigma, > 0).
+- ``opacities``    (N,)   float32, linear opacity in [0, 1].
+- ``sh``           (N, (d+1)^2, 3) float32, SH coefficients in the 3DGS basis
+  (``usd_gs.sh3dgs``), particle-major, coefficient 0 is the raw DC term ``f_dc``.
+- ``sh_degree``    int d in 0..3, always equal to ``sqrt(sh.shape[1]) - 1``.
+
+Optional lossless side data, kept so that PLY -> USD -> PLY is bit-exact even where
+float32 ``exp``/``sigmoid`` are not invertible:
+
+- ``log_scales``      (N, 3) float32 raw PLY ``scale_*`` (natural log of sigma) or None.
+- ``logit_opacities`` (N,)   float32 raw PLY ``opacity`` (logit) or None.
+- ``extras``          dict name -> (N,) array, other per-particle PLY fields (normals...).
+
+Covariance: ``Sigma = R diag(s)^2 R^T`` with ``R`` the rotation matrix of the quaternion
+acting on column vectors (world = R @ local).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import sh3dgs
+from .errors import GaussianDataError, first_bad_index
+
+
+def _as_f32(name: str, a, shape_tail: tuple, label: str) -> np.ndarray:
+    arr = np.ascontiguousarray(np.asarray(a), dtype=np.float32)
+    if arr.ndim != 1 + len(shape_tail) or tuple(arr.shape[1:]) != shape_tail:
+        raise GaussianDataError(
+            f"{label}: '{name}' must have shape (N, {', '.join(map(str, shape_tail))}) "
+            f"but has shape {tuple(arr.shape)}".replace("(N, )", "(N,)")
+        )
+    return arr
+
+
+@dataclass
+class GaussianSet:
+    """N Gaussians as a structure of arrays; see the module docstring for conventions."""
+
+    positions: np.ndarray
+    orientations: np.ndarray
+    scales: np.ndarray
+    opacities: np.ndarray
+    sh: np.ndarray
+    log_scales: np.ndarray | None = None
+    logit_opacities: np.ndarray | None = None
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    label: str = "<gaussians>"
+
+    def __post_init__(self) -> None:
+        lb = self.label
+        self.positions = _as_f32("positions", self.positions, (3,), lb)
+        self.orientations = _as_f32("orientations", self.orientations, (4,), lb)
+        self.scales = _as_f32("scales", self.scales, (3,), lb)
+        self.opacities = _as_f32("opacities", self.opacities, (), lb)
+        sh = np.asarray(self.sh)
+        if sh.ndim != 3 or sh.shape[2] != 3:
+            raise GaussianDataError(
+                f"{lb}: 'sh' must have shape (N, (d+1)^2, 3) but has shape {tuple(sh.shape)}")
+        try:
+            degree = sh3dgs.degree_from_num_coeffs(sh.shape[1])
+        except ValueError as exc:
+            raise GaussianDataError(f"{lb}: 'sh': {exc}") from None
+        if degree > sh3dgs.MAX_DEGREE:
+            raise GaussianDataError(f"{lb}: 'sh' has degree {degree}, more than {sh3dgs.MAX_DEGREE}")
+        self.sh = np.ascontiguousarray(sh, dtype=np.float32)
+        n = self.positions.shape[0]
+        for name in ("orientations", "scales", "opacities", "sh"):
+            m = getattr(self, name).shape[0]
+            if m != n:
+                raise GaussianDataError(f"{lb}: '{name}' has {m} elements but 'positions' has {n}")
+        if self.log_scales is not None:
+            self.log_scales = _as_f32("log_scales", self.log_scales, (3,), lb)
+            if self.log_scales.shape[0] != n:
+                raise GaussianDataError(f"{lb}: 'log_scales' has {self.log_scales.shape[0]} elements, expected {n}")
+        if self.logit_opacities is not None:
+            self.logit_opacities = _as_f32("logit_opacities", self.logit_opacities, (), lb)
+            if self.logit_opacities.shape[0] != n:
+                raise GaussianDataError(
+                    f"{lb}: 'logit_opacities' has {self.logit_opacities.shape[0]} elements, expected {n}")
+        for key, arr in list(self.extras.items()):
+            arr = np.ascontiguousarray(arr)
+            if arr.shape[:1] != (n,):
+                raise GaussianDataError(f"{lb}: extra field '{key}' has {arr.shape[:1]} elements, expected {n}")
+            self.extras[key] = arr
+
+    # ------------------------------------------------------------------ basics
+    @property
+    def count(self) -> int:
+        return int(self.positions.shape[0])
+
+    def __len__(self) -> int:
+        return self.count
+
+    @property
+    def sh_degree(self) -> int:
+        return sh3dgs.degree_from_num_coeffs(self.sh.shape[1])
+
+    @classmethod
+    def empty(cls, degree: int = 0, label: str = "<gaussians>") -> GaussianSet:
+        return cls(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0,)),
+                   np.zeros((0, sh3dgs.num_coeffs(degree), 3)), label=label)
+
+    def with_label(self, label: str) -> GaussianSet:
+        return replace(self, label=label, extras=dict(self.extras))
+
+    # ------------------------------------------------------------- validation
+    def problems(self) -> list[str]:
+        """All data-contract violations, each naming attribute and first bad element.
+
+        Checks: finite values everywhere, scales > 0, opacities in [0, 1], quaternion norm
+        within 1 +/- 1e-3 (the VG.035 rule). Returns an empty list when the set is valid.
+        """
+        out = []
+        checks = [
+            ("positions", ~np.isfinite(self.positions), "is not finite"),
+            ("orientations", ~np.isfinite(self.orientations), "is not finite"),
+            ("scales", ~np.isfinite(self.scales), "is not finite"),
+            ("scales", self.scales <= 0, "is not > 0"),
+            ("opacities", ~np.isfinite(self.opacities), "is not finite"),
+            ("opacities", (self.opacities < 0) | (self.opacities > 1), "is outside [0, 1]"),
+            ("sh", ~np.isfinite(self.sh), "is not finite"),
+        ]
+        qn = np.linalg.norm(self.orientations.astype(np.float64), axis=1)
+        checks.append(("orientations", ~(np.abs(qn - 1.0) <= 1e-3),
+                       "is not a unit quaternion (|q| outside 1 +/- 1e-3)"))
+        for name, bad, what in checks:
+            i = first_bad_index(bad) if len(bad) else -1
+            if i >= 0:
+                nbad = int(np.asarray(bad).reshape(len(bad), -1).any(axis=1).sum())
+                value = getattr(self, name)[i]
+                shown = np.array2string(np.asarray(value), precision=6)
+                out.append(f"{self.label}: '{name}' element {i} {what} (value {shown}; "
+                           f"{nbad} bad element{'s' if nbad != 1 else ''})")
+        return out
+
+    def check(self) -> GaussianSet:
+        """Raise ``GaussianDataError`` listing every problem; return self when valid."""
+        probs = self.problems()
+        if probs:
+            raise GaussianDataError("; ".join(probs))
+        return self
+
+    # ----------------------------------------------------------- derived data
+    def unit_quaternions(self) -> np.ndarray:
+        """(N, 4) float64 normalised (w, x, y, z); a zero quaternion becomes identity."""
+        q = self.orientations.astype(np.float64)
+        n = np.linalg.norm(q, axis=1, keepdims=True)
+        out = np.where(n > 0, q / np.where(n > 0, n, 1.0), np.array([1.0, 0.0, 0.0, 0.0]))
+        return out
+
+    def rotation_matrices(self) -> np.ndarray:
+        """(N, 3, 3) float64 rotation matrices of the (normalised) quaternions."""
+        return quaternion_to_matrix(self.unit_quaternions())
+
+    def covariances(self) -> np.ndarray:
+        """(N, 3, 3) float64 ``R diag(s^2) R^T``."""
+        r = self.rotation_matrices()
+        s2 = self.scales.astype(np.float64) ** 2
+        return np.einsum("nij,nj,nkj->nik", r, s2, r)
+
+    def precisions(self) -> np.ndarray:
+        """(N, 3, 3) float64 inverse covariances ``R diag(s^-2) R^T``."""
+        r = self.rotation_matrices()
+        inv_s2 = 1.0 / self.scales.astype(np.float64) ** 2
+        return np.einsum("nij,nj,nkj->nik", r, inv_s2, r)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min, max) of the centres, float64 (3,) each; NaN for an empty set."""
+        if self.count == 0:
+            nan = np.full(3, np.nan)
+            return nan, nan.copy()
+        p = self.positions.astype(np.float64)
+        return p.min(axis=0), p.max(axis=0)
+
+    def extent(self, n_sigma: float = 3.0) -> np.ndarray:
+        """(2, 3) float32 axis-aligned box around every Gaussian's ``n_sigma`` ellipsoid.
+
+        Float64 math; a zero quaternion counts as identity. Per axis i the half-width is
+        ``n_sigma * sqrt(sum_j R_ij^2 s_j^2)``, computed row by row without (N, 3, 3) arrays.
+        """
+        if self.count == 0:
+            return np.zeros((2, 3), np.float32)
+        w, x, y, z = self.unit_quaternions().T
+        s2 = self.scales.astype(np.float64) ** 2
+        rows = (
+            (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+        )
+        p = self.positions
+        lo, hi = np.empty(3), np.empty(3)
+        for i, (a, b, c) in enumerate(rows):
+            half = n_sigma * np.sqrt(a * a * s2[:, 0] + b * b * s2[:, 1] + c * c * s2[:, 2])
+            lo[i] = np.min(p[:, i] - half)
+            hi[i] = np.max(p[:, i] + half)
+        return np.stack([lo, hi]).astype(np.float32)
+
+    # ------------------------------------------------------------ operations
+    def subset(self, index) -> GaussianSet:
+        """Gaussians selected by an integer index array, slice or boolean mask."""
+        def take(a):
+            return None if a is None else a[index]
+        return GaussianSet(
+            self.positions[index], self.orientations[index], self.scales[index],
+            self.opacities[index], self.sh[index], take(self.log_scales),
+            take(self.logit_opacities), {k: v[index] for k, v in self.extras.items()},
+            label=self.label)
+
+    def with_sh_degree(self, degree: int) -> GaussianSet:
+        """Same Gaussians with SH truncated or zero-padded to ``degree``."""
+        k = sh3dgs.num_coeffs(degree)
+        sh = np.zeros((self.count, k, 3), np.float32)
+        m = min(k, self.sh.shape[1])
+        sh[:, :m] = self.sh[:, :m]
+        return replace(self, sh=sh, extras=dict(self.extras))
+
+    def transformed(self, matrix, label: str | None = None, rotate_sh: bool = True) -> GaussianSet:
+        """Apply a similarity transform given as a USD 4x4 matrix (row-vector convention).
+
+        ``matrix`` is what ``Gf.Matrix4d`` holds (``np.array(m)``): a point maps as
+        ``p' = [p, 1] @ matrix``. Its 3x3 part must be ``s * Q`` with ``Q`` orthogonal
+        (rotation or reflection) and ``s > 0``; a non-uniform scale or shear raises
+        ``GaussianDataError`` naming ``label``. Positions are transformed in float64,
+        orientations rotated, scales multiplied by ``s``, and (if ``rotate_sh``) SH bands
+        1..3 rotated by the exact per-band matrices so view-dependent colour follows
+        the Gaussian. ``log_scales`` shift by ``log(s)``; extras are kept as they are.
+        """
+        label = label or self.label
+        m = np.asarray(matrix, dtype=np.float64)
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise GaussianDataError(f"{label}: transform is not a finite 4x4 matrix")
+        if np.array_equal(m[:3, :3], np.eye(3)) and not np.any(m[:3, 3]) and m[3, 3] == 1.0:
+            # Pure translation (or identity): every value but the positions stays bit-exact.
+            pos = self.positions if not np.any(m[3, :3]) else self.positions.astype(np.float64) + m[3, :3]
+            return replace(self, positions=np.array(pos, dtype=np.float32), label=label, extras=dict(self.extras))
+        if np.max(np.abs(m[:3, 3])) > 1e-9 or abs(m[3, 3] - 1.0) > 1e-9:
+            raise GaussianDataError(f"{label}: transform is projective, not a similarity transform")
+        lin = m[:3, :3].T  # column-vector convention: p' = lin @ p + t
+        t = m[3, :3]
+        det = np.linalg.det(lin)
+        if det == 0:
+            raise GaussianDataError(f"{label}: transform is singular (determinant 0)")
+        s = abs(det) ** (1.0 / 3.0)
+        q = lin / s
+        err = np.max(np.abs(q.T @ q - np.eye(3)))
+        if err > 1e-5:
+            raise GaussianDataError(
+                f"{label}: transform has a non-uniform scale or shear (|Q^T Q - I| = {err:.3g}); "
+                "only rotations, translations, reflections and uniform scales are supported")
+        # Orthonormalise Q exactly (polar decomposition) so rotations stay unit.
+        u, _, vt = np.linalg.svd(q)
+        q = u @ vt
+        reflect = np.linalg.det(q) < 0
+        pos = self.positions.astype(np.float64) @ lin.T + t
+        r = self.rotation_matrices()
+        r_new = np.einsum("ij,njk->nik", q, r)
+        if reflect:
+            # Flipping the first local axis leaves the covariance unchanged and makes det +1.
+            r_new[:, :, 0] *= -1.0
+        quat = matrix_to_quaternion(r_new)
+        sh = sh3dgs.rotate_coefficients(self.sh, q) if (rotate_sh and self.sh_degree > 0) else self.sh.copy()
+        log_scales = None if self.log_scales is None else (self.log_scales.astype(np.float64) + np.log(s))
+        return GaussianSet(pos, quat, self.scales.astype(np.float64) * s, self.opacities.copy(), sh,
+                           log_scales, None if self.logit_opacities is None else self.logit_opacities.copy(),
+                           dict(self.extras), label=label)
+
+    @staticmethod
+    def concatenate(sets: list[GaussianSet], label: str = "<gaussians>") -> GaussianSet:
+        """One set holding all Gaussians of ``sets`` in order.
+
+        SH is zero-padded to the highest degree among the inputs. Raw ``log_scales`` /
+        ``logit_opacities`` are kept only if every input has them; ``extras`` only for
+        keys (with equal trailing shape) present in every input.
+        """
+        if not sets:
+            return GaussianSet.empty(label=label)
+        degree = max(g.sh_degree for g in sets)
+        sets = [g if g.sh_degree == degree else g.with_sh_degree(degree) for g in sets]
+
+        def cat(name):
+            vals = [getattr(g, name) for g in sets]
+            return None if any(v is None for v in vals) else np.concatenate(vals)
+        keys = set(sets[0].extras)
+        for g in sets[1:]:
+            keys &= {k for k in g.extras if g.extras[k].shape[1:] == sets[0].extras.get(k, np.zeros(0)).shape[1:]}
+        extras = {k: np.concatenate([g.extras[k] for g in sets]) for k in sorted(keys)}
+        return GaussianSet(cat("positions"), cat("orientations"), cat("scales"), cat("opacities"),
+                           cat("sh"), cat("log_scales"), cat("logit_opacities"), extras, label=label)
+
+
+def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (w, x, y, z) -> (N, 3, 3) float64 rotation matrices."""
+    q = np.asarray(q, dtype=np.float64)
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    r = np.empty((q.shape[0], 3, 3))
+    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    r[:, 0, 1] = 2 * (x * y - w * z)
+    r[:, 0, 2] = 2 * (x * z + w * y)
+    r[:, 1, 0] = 2 * (x * y + w * z)
+    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    r[:, 1, 2] = 2 * (y * z - w * x)
+    r[:, 2, 0] = 2 * (x * z - w * y)
+    r[:, 2, 1] = 2 * (y * z + w * x)
+    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+def matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices -> (N, 4) unit quaternions (w, x, y, z), w >= 0.
+
+    Shepperd's method: pick the largest of (w, x, y, z) to divide by, stable for every
+    rotation including 180 degrees.
+    """
+    r = np.asarray(r, dtype=np.float64)
+    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
+    tr = m00 + m11 + m22
+    cand = np.stack([tr, m00, m11, m22], axis=1)
+    k = np.argmax(cand, axis=1)
+    q = np.empty((r.shape[0], 4))
+    # case w largest
+    s = np.sqrt(np.maximum(1.0 + tr, 1e-300)) * 2
+    qw = np.stack([0.25 * s, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
+                   (r[:, 1, 0] - r[:, 0, 1]) / s], axis=1)
+    s = np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 1e-300)) * 2
+    qx = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, 0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s,
+                   (r[:, 0, 2] + r[:, 2, 0]) / s], axis=1)
+    s = np.sqrt(np.maximum(1.0 - m00 + m11 - m22, 1e-300)) * 2
+    qy = np.stack([(r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s,
+                   (r[:, 1, 2] + r[:, 2, 1]) / s], axis=1)
+    s = np.sqrt(np.maximum(1.0 - m00 - m11 + m22, 1e-300)) * 2
+    qz = np.stack([(r[:, 1, 0] - r[:, 0, 1]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s,
+                   (r[:, 1, 2] + r[:, 2, 1]) / s, 0.25 * s], axis=1)
+    for idx, cq in enumerate((qw, qx, qy, qz)):
+        sel = k == idx
+        q[sel] = cq[sel]
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return q
