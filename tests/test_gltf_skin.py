@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,6 @@ import trimesh
 from usd_gs.errors import InputFormatError
 from usd_gs.gltf_skin import (
     AnimationChannel,
-    decode_png,
     load_skinned_mesh,
     loop_period,
     node_global_matrices,
@@ -300,7 +298,7 @@ def test_two_bone_bar_analytic(tmp_path):
 def test_texture_and_base_colour(tmp_path):
     # A 2x1 PNG (sRGB 255 and 128 grey) modulated by baseColorFactor (linear) (0.5, 0.25, 1).
     img = np.array([[[255, 255, 255], [128, 128, 128]]])
-    m = load_skinned_mesh(_two_bone_bar(tmp_path, _encode_png(img, 2, 8, np.array([1]))))
+    m = load_skinned_mesh(_two_bone_bar(tmp_path, _encode_png(img)))
     assert m.texture.shape == (1, 2, 3) and m.texture_note == ""
     np.testing.assert_allclose(m.base_color, [0.5, 0.25, 1.0])
     lin128 = ((128 / 255 + 0.055) / 1.055) ** 2.4
@@ -330,62 +328,15 @@ def test_errors_name_the_file(tmp_path):
         load_skinned_mesh(tmp_path / "missing.glb")
 
 
-# ----------------------------------------------------------------------------- PNG decoder
-def _encode_png(img: np.ndarray, color_type: int, depth: int, filters: np.ndarray, palette=None) -> bytes:
-    """PNG writer for tests: each row filtered with the given type (vectorised: residuals
-    are computed from the known original image, so no sequential dependency)."""
-    h, w = img.shape[:2]
-    if depth == 16:
-        raw = img.astype(">u2").view(np.uint8).reshape(h, -1)
-    else:
-        raw = img.astype(np.uint8).reshape(h, -1)
-    bpp = raw.shape[1] // w
-    x = raw.astype(np.int64)
-    a = np.zeros_like(x)
-    a[:, bpp:] = x[:, :-bpp]
-    b = np.zeros_like(x)
-    b[1:] = x[:-1]
-    c = np.zeros_like(x)
-    c[1:, bpp:] = x[:-1, :-bpp]
-    p = a + b - c
-    pa, pb, pc = np.abs(p - a), np.abs(p - b), np.abs(p - c)
-    paeth = np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
-    preds = [np.zeros_like(x), a, b, (a + b) // 2, paeth]
-    out = np.empty((h, raw.shape[1] + 1), np.uint8)
-    out[:, 0] = filters
-    for r in range(h):
-        out[r, 1:] = (x[r] - preds[filters[r]][r]) & 255
-    def chunk(t, d):
-        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, color_type, 0, 0, 0))
-    if palette is not None:
-        png += chunk(b"PLTE", palette.astype(np.uint8).tobytes())
-    data = zlib.compress(out.tobytes())
-    return png + chunk(b"IDAT", data[:50]) + chunk(b"IDAT", data[50:]) + chunk(b"IEND", b"")
+def _encode_png(img: np.ndarray) -> bytes:
+    """8-bit RGB PNG bytes written by Pillow."""
+    import io
 
+    from PIL import Image
 
-@pytest.mark.parametrize("color_type,channels,depth", [(2, 3, 8), (6, 4, 8), (0, 1, 8), (4, 2, 8), (2, 3, 16)])
-def test_png_all_filters(color_type, channels, depth):
-    rng = np.random.default_rng(color_type * 10 + depth)
-    h, w = 23, 31
-    hi = 65535 if depth == 16 else 255
-    img = rng.integers(0, hi + 1, (h, w, channels))
-    img[5:12, 3:20] = 200  # flat area: the predictors matter
-    filters = rng.integers(0, 5, h)
-    filters[:5] = [0, 1, 2, 3, 4]
-    got = decode_png(_encode_png(img, color_type, depth, filters), "t.png")
-    assert got.dtype == (np.uint16 if depth == 16 else np.uint8)
-    np.testing.assert_array_equal(got, img.reshape(h, w, channels))
-
-
-def test_png_palette_and_errors():
-    rng = np.random.default_rng(3)
-    pal = rng.integers(0, 256, (7, 3))
-    idx = rng.integers(0, 7, (9, 11, 1))
-    got = decode_png(_encode_png(idx, 3, 8, np.full(9, 4), palette=pal), "p.png")
-    np.testing.assert_array_equal(got, pal[idx[..., 0]])
-    with pytest.raises(InputFormatError, match="x.png: not a PNG"):
-        decode_png(b"GIF89a....", "x.png")
+    buf = io.BytesIO()
+    Image.fromarray(img.astype(np.uint8), "RGB").save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def test_srgb_to_linear_reference_points():

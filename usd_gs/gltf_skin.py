@@ -1,14 +1,14 @@
 """Minimal glTF 2.0 binary (.glb) reader for one skinned, animated mesh, and its skinning.
 
-numpy only (plus ``struct``/``json``/``zlib`` of the standard library). Reads:
+numpy plus Pillow for the texture image. Reads:
 
 - the GLB container (12-byte header, JSON chunk, BIN chunk);
 - accessors (componentType, type, byteOffset, byteStride, normalized, sparse) and bufferViews;
 - the triangle primitives of the first skinned mesh node: POSITION, NORMAL, TEXCOORD_0,
   JOINTS_0, WEIGHTS_0 and indices (several primitives are concatenated);
-- the material's base colour texture (embedded PNG decoded by a small numpy PNG decoder in
-  this module; JPEG/other formats only when Pillow happens to be importable, otherwise the
-  ``baseColorFactor`` is used and ``SkinnedMesh.texture`` is None);
+- the material's base colour texture (embedded PNG or JPEG, decoded with Pillow; an image
+  that cannot be decoded leaves ``SkinnedMesh.texture`` None with a note, and the
+  ``baseColorFactor`` is used);
 - the node hierarchy (TRS or matrix), the skin (joints, inverseBindMatrices, skeleton) and
   the animations (translation / rotation / scale channels; LINEAR, STEP, CUBICSPLINE).
 
@@ -40,7 +40,6 @@ from __future__ import annotations
 import base64
 import json
 import struct
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -248,81 +247,6 @@ class _Doc:
 
 
 # --------------------------------------------------------------------------- PNG (numpy)
-def _paeth(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    p = a + b - c
-    pa, pb, pc = np.abs(p - a), np.abs(p - b), np.abs(p - c)
-    return np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
-
-
-def decode_png(data: bytes, name: str = "<png>") -> np.ndarray:
-    """Decode a non-interlaced 8- or 16-bit PNG to an (H, W, C) uint8/uint16 array.
-
-    Supports colour types 0 (grey), 2 (RGB), 3 (palette, 8-bit), 4 (grey+alpha), 6 (RGBA)
-    and all five row filters. Reconstruction runs over anti-diagonals of the pixel grid
-    (pixel (r, x) needs (r, x-1), (r-1, x) and (r-1, x-1)), each diagonal vectorised, so
-    the cost is ``H + W`` numpy steps, not ``H * W`` Python steps. Raises
-    ``InputFormatError`` naming ``name`` for anything else.
-    """
-    if data[:8] != b"\x89PNG\r\n\x1a\n":
-        raise InputFormatError(f"{name}: not a PNG image (bad signature)")
-    off, ihdr, plte, idat = 8, None, None, []
-    while off + 8 <= len(data):
-        (length,) = struct.unpack_from(">I", data, off)
-        ctype = data[off + 4: off + 8]
-        body = data[off + 8: off + 8 + length]
-        if ctype == b"IHDR":
-            ihdr = struct.unpack(">IIBBBBB", body[:13])
-        elif ctype == b"PLTE":
-            plte = np.frombuffer(body, np.uint8).reshape(-1, 3)
-        elif ctype == b"IDAT":
-            idat.append(body)
-        elif ctype == b"IEND":
-            break
-        off += 12 + length
-    if ihdr is None:
-        raise InputFormatError(f"{name}: PNG has no IHDR chunk")
-    w, h, depth, ctype_, _, _, interlace = ihdr
-    channels = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}.get(ctype_)
-    if channels is None or depth not in (8, 16) or (ctype_ == 3 and depth != 8):
-        raise InputFormatError(f"{name}: PNG colour type {ctype_} with bit depth {depth} is not supported")
-    if interlace:
-        raise InputFormatError(f"{name}: interlaced (Adam7) PNG is not supported")
-    bpp = channels * depth // 8
-    try:
-        raw = np.frombuffer(zlib.decompress(b"".join(idat)), np.uint8)
-    except zlib.error as exc:
-        raise InputFormatError(f"{name}: PNG image data is corrupt ({exc})") from None
-    if raw.size < h * (1 + w * bpp):
-        raise InputFormatError(f"{name}: PNG image data has {raw.size} bytes, expected {h * (1 + w * bpp)}")
-    rows = raw[: h * (1 + w * bpp)].reshape(h, 1 + w * bpp)
-    ftype = rows[:, 0].astype(np.int16)
-    if ftype.max(initial=0) > 4:
-        raise InputFormatError(f"{name}: PNG row {int(np.argmax(ftype > 4))} has unknown filter type")
-    filt = rows[:, 1:].reshape(h, w, bpp).astype(np.int16)
-    out = np.zeros((h + 1, w + 1, bpp), np.int16)  # zero row/column of padding at index 0
-    for d in range(h + w - 1):
-        r = np.arange(max(0, d - w + 1), min(h - 1, d) + 1)
-        x = d - r
-        a, b, c = out[r + 1, x], out[r, x + 1], out[r, x]
-        f = ftype[r][:, None]
-        pred = np.where(f == 1, a, np.where(f == 2, b, np.where(f == 3, (a + b) >> 1,
-                                                                 np.where(f == 4, _paeth(a, b, c), 0))))
-        out[r + 1, x + 1] = (filt[r, x] + pred) & 255
-    img = out[1:, 1:].astype(np.uint8)
-    if depth == 16:
-        pairs = img.reshape(h, w, channels, 2).astype(np.uint16)  # big-endian samples
-        img = (pairs[..., 0] << 8) | pairs[..., 1]
-    else:
-        img = img.reshape(h, w, channels)
-    if ctype_ == 3:
-        if plte is None:
-            raise InputFormatError(f"{name}: palette PNG without PLTE chunk")
-        if img.max(initial=0) >= len(plte):
-            raise InputFormatError(f"{name}: palette index {int(img.max())} >= palette size {len(plte)}")
-        img = plte[img[..., 0]]
-    return img
-
-
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding of values in [0, 1] (float64 in, float64 out)."""
     c = np.asarray(c, dtype=np.float64)
@@ -330,29 +254,21 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
 
 
 def _decode_image(blob: bytes, mime: str, name: str) -> tuple[np.ndarray | None, str]:
-    """(H, W, 3) float64 sRGB-encoded values in [0, 1], or (None, reason)."""
-    if blob[:8] == b"\x89PNG\r\n\x1a\n":
-        try:
-            img = decode_png(blob, name)
-        except InputFormatError as exc:
-            return None, str(exc)
-        scale = 65535.0 if img.dtype == np.uint16 else 255.0
-    else:
-        try:
-            import io
+    """(H, W, 3) float64 sRGB-encoded values in [0, 1] decoded with Pillow, or (None, reason)."""
+    import io
 
-            from PIL import Image  # optional: only for JPEG and other non-PNG images
-        except ImportError:
-            return None, f"{name}: {mime or 'non-PNG'} image needs Pillow, which is not installed"
-        try:
-            img = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
-        except Exception as exc:  # Pillow raises several types for undecodable data
-            return None, f"{name}: {mime or 'image'} could not be decoded ({exc})"
-        scale = 255.0
-    img = img.astype(np.float64) / scale
-    if img.shape[2] in (1, 2):
-        img = np.repeat(img[..., :1], 3, axis=2)
-    return img[..., :3], ""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(io.BytesIO(blob)) as im:
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                img = np.asarray(im, dtype=np.float64) / 65535.0
+                img = np.repeat(img[..., None], 3, axis=2)
+            else:
+                img = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        return None, f"{name}: {mime or 'image'} could not be decoded ({exc})"
+    return img, ""
 
 
 # --------------------------------------------------------------------------- quaternions
