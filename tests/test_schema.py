@@ -25,10 +25,17 @@ EXPECTED = {  # property -> (type, fallback)
 }
 
 
-def test_schema_dir_found_from_source_tree():
+def test_schema_dir_found_and_matches_repo_files():
+    """From the source tree the locator finds <repo>/schemas; from an installed package it
+    finds usd_gs/schemas in site-packages. Either way the files are the repo's."""
+    import usd_gs
+
     d = schema_dir()
-    assert (d / "plugInfo.json").is_file() and (d / "generatedSchema.usda").is_file()
-    assert d.resolve() == (REPO / "schemas").resolve()
+    installed = Path(usd_gs.__file__).resolve().parent != (REPO / "usd_gs").resolve()
+    expected_dir = Path(usd_gs.__file__).resolve().parent / "schemas" if installed else REPO / "schemas"
+    assert d.resolve() == expected_dir.resolve()
+    for name in ("plugInfo.json", "generatedSchema.usda", "schema.usda"):
+        assert (d / name).read_bytes() == (REPO / "schemas" / name).read_bytes(), name
 
 
 def test_register_is_idempotent_and_defines_api():
