@@ -40,16 +40,22 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
     pass
 
 
+# Modules that define subcommands; each has ``REGISTRARS``: functions (subparsers, formatter).
+COMMAND_MODULES = ("cmd_io",)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    from . import cmd_io
+    import importlib
 
     parser = argparse.ArgumentParser(prog="usdgs", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"usdgs {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of any error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for register in cmd_io.REGISTRARS:
-        register(sub, _Formatter)
+    for name in COMMAND_MODULES:
+        module = importlib.import_module(f"{__package__}.{name}")
+        for register in module.REGISTRARS:
+            register(sub, _Formatter)
     return parser
 
 
