@@ -1,0 +1,99 @@
+"""Deciding the role of every Gaussian prim of a shot: scene, avatar or object.
+
+Order (the main job's contract):
+
+1. ``usdgs:role`` authored on the prim (``UsdGsRoleAPI``) when it is not ``auto``;
+2. otherwise the command-line lists ``--scene`` / ``--avatar`` / ``--object``;
+3. otherwise ``auto``: a prim whose Gaussians or transform vary in time is dynamic:
+   an ``avatar`` when its name looks like a person (:data:`AVATAR_NAME_HINT`), else an
+   ``object``; a static prim is ``scene``.
+
+A flag that contradicts an authored role is reported as a warning (the authored role wins).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from .errors import UserError
+from .schema import RoleInfo
+
+#: Prim names that mark a dynamic prim as an avatar under ``auto``.
+AVATAR_NAME_HINT = re.compile(
+    r"avatar|human|person|people|man\b|man_|woman|girl|boy|character|actor|body|biker|walker|dancer|player|"
+    r"cesiumman", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class ResolvedRole:
+    """The role a prim plays in this run and where that decision came from.
+
+    ``source`` is 'schema', 'flag' or 'auto'; the shadow/relight switches come from the
+    role schema attributes (fallback true).
+    """
+
+    path: str
+    role: str
+    source: str
+    dynamic: bool
+    casts_shadows: bool
+    receives_shadows: bool
+    relight: bool
+
+    @property
+    def is_caster(self) -> bool:
+        return self.casts_shadows
+
+    @property
+    def is_dynamic_role(self) -> bool:
+        return self.role in ("avatar", "object")
+
+
+def resolve_roles(infos, scene_paths=(), avatar_paths=(), object_paths=()) -> tuple[list[ResolvedRole], list[str]]:
+    """Resolve roles for ``infos`` (``usd_io.GaussianPrimInfo``, one per Gaussian prim).
+
+    Returns (roles in the order of ``infos``, warnings). A flag naming a path that is not a
+    Gaussian prim of the stage, or one path in two lists, raises ``UserError``.
+    """
+    known = {i.path for i in infos}
+    flags: dict[str, str] = {}
+    for role, paths in (("scene", scene_paths), ("avatar", avatar_paths), ("object", object_paths)):
+        for p in paths or ():
+            p = str(p)
+            if p not in known:
+                listed = ", ".join(sorted(known)) or "none"
+                raise UserError(f"--{role} {p}: not a ParticleField3DGaussianSplat prim of the stage "
+                                f"(Gaussian prims: {listed})")
+            if p in flags and flags[p] != role:
+                raise UserError(f"{p}: given both as --{flags[p]} and --{role}")
+            flags[p] = role
+    out, warnings = [], []
+    for info in infos:
+        authored: RoleInfo = info.role
+        name = info.path.rsplit("/", 1)[-1]
+        if authored.role != "auto":
+            role, source = authored.role, "schema"
+            if info.path in flags and flags[info.path] != role:
+                warnings.append(f"{info.path}: --{flags[info.path]} ignored, usdgs:role is authored as '{role}'")
+        elif info.path in flags:
+            role, source = flags[info.path], "flag"
+        elif info.animated:
+            role, source = ("avatar" if AVATAR_NAME_HINT.search(name) else "object"), "auto"
+        else:
+            role, source = "scene", "auto"
+        out.append(ResolvedRole(info.path, role, source, bool(info.animated), authored.casts_shadows,
+                                authored.receives_shadows, authored.relight))
+    return out, warnings
+
+
+def role_table(roles: list[ResolvedRole], counts: dict[str, int] | None = None) -> str:
+    """A printable table: prim, role, source, dynamic, casts, receives, relight (and count)."""
+    head = ["prim", "role", "from", "dynamic", "casts", "receives", "relight"] + (["count"] if counts else [])
+    rows = [[r.path, r.role, r.source, "yes" if r.dynamic else "no", "yes" if r.casts_shadows else "no",
+             "yes" if r.receives_shadows else "no", "yes" if r.relight else "no"]
+            + ([f"{counts.get(r.path, 0):,}"] if counts else []) for r in roles]
+    widths = [max(len(h), *(len(row[i]) for row in rows)) if rows else len(h) for i, h in enumerate(head)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)) for row in rows]
+    return "\n".join(lines)
