@@ -1,0 +1,148 @@
+"""Per-Gaussian pseudo-normals: smallest axis, outward orientation, no sign flips between neighbours."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local, quat_axis_smallest
+from usd_gs.gaussians import matrix_to_quaternion, quaternion_to_matrix
+
+
+def _flat_gaussians(normals, rng, thin=0.002, wide=0.02):
+    """Random flat Gaussians whose thin axis is +-normal: random spin, random sign, random
+    choice of which local axis is the thin one."""
+    n = len(normals)
+    t = np.cross(normals, rng.normal(size=normals.shape))
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    sign = np.where(rng.random(n) < 0.5, -1.0, 1.0)[:, None]
+    nn = normals * sign
+    b = np.cross(nn, t)
+    frame = np.stack([t, b, nn], axis=2)  # columns: t, b, +-n (right-handed)
+    thin_axis = rng.integers(0, 3, n)
+    rot = frame.copy()
+    for k in (0, 1):  # move the normal column to position k (cyclic shifts keep det = +1)
+        m = thin_axis == k
+        shift = (2 - k) % 3
+        rot[m] = np.roll(frame[m], -shift, axis=2)
+    scales = np.full((n, 3), wide)
+    scales[np.arange(n), thin_axis] = thin
+    return matrix_to_quaternion(rot), scales
+
+
+def _sign_flips(pos, normals, radius):
+    pairs = cKDTree(pos).query_pairs(radius, output_type="ndarray")
+    dots = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]])
+    return int((dots < 0).sum()), len(pairs)
+
+
+def _torus(n, rng, big=1.0, small=0.35):
+    u = rng.random(n) * 2 * np.pi
+    v = rng.random(n) * 2 * np.pi
+    pos = np.stack([(big + small * np.cos(v)) * np.cos(u), (big + small * np.cos(v)) * np.sin(u), small * np.sin(v)], 1)
+    nrm = np.stack([np.cos(v) * np.cos(u), np.cos(v) * np.sin(u), np.sin(v)], 1)
+    return pos, nrm
+
+
+def test_axis_of_smallest_scale_from_quaternion():
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(20, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    r = quaternion_to_matrix(q)
+    for i in range(20):
+        s = rng.uniform(0.1, 1.0, 3)
+        ax = quat_axis_smallest(2.5 * q[i], s)  # non-unit quaternion is normalised
+        np.testing.assert_allclose(ax[:3], r[i][:, np.argmin(s)], atol=1e-12)
+        assert abs(ax[3] - np.sort(s)[0] / np.sort(s)[1]) < 1e-12
+
+
+@pytest.mark.parametrize("shape", ["sphere", "torus"])
+def test_flat_gaussians_get_outward_consistent_normals(shape):
+    rng = np.random.default_rng(1)
+    n = 6000
+    if shape == "sphere":
+        true = rng.normal(size=(n, 3))
+        true /= np.linalg.norm(true, axis=1, keepdims=True)
+        pos = 2.0 * true + np.array([5.0, -1.0, 3.0])
+    else:
+        pos, true = _torus(n, rng)
+    quat, scales = _flat_gaussians(true, rng)
+    opac = rng.uniform(0.3, 1.0, n)
+    radius = 0.25 if shape == "sphere" else 0.12  # ~20 neighbours each
+    got = gaussian_normals(pos, quat, scales, opac, radius=radius)
+    assert got.dtype == np.float32 and np.isfinite(got).all()
+    dots = np.einsum("ij,ij->i", got, true)
+    assert dots.min() > 0.9, (shape, int((dots <= 0.9).sum()))
+    flips, pairs = _sign_flips(pos, got, radius)
+    assert pairs > 5 * n and flips == 0
+    # the automatic radius gives the same answer
+    auto = gaussian_normals(pos, quat, scales, opac)
+    assert np.einsum("ij,ij->i", auto, true).min() > 0.9
+
+
+def test_sign_flip_check_detects_a_flipped_normal():
+    """The neighbour check used above catches a single flipped normal."""
+    rng = np.random.default_rng(2)
+    pos, true = _torus(3000, rng)
+    bad = true.copy()
+    bad[123] *= -1
+    flips, _ = _sign_flips(pos, bad, 0.15)
+    assert flips > 0
+    assert _sign_flips(pos, true, 0.15)[0] == 0
+
+
+def test_consistency_pass_repairs_centroid_errors_on_torus():
+    rng = np.random.default_rng(3)
+    pos, true = _torus(4000, rng, small=0.45)
+    quat, scales = _flat_gaussians(true, rng)
+    radius = 0.15
+    raw = gaussian_normals(pos, quat, scales, np.ones(4000), radius=radius, n_smooth=0)
+    fixed = gaussian_normals(pos, quat, scales, np.ones(4000), radius=radius)
+    assert np.einsum("ij,ij->i", fixed, true).min() > 0.9
+    assert _sign_flips(pos, fixed, radius)[0] == 0
+    # without the pass, sampling noise leaves some wrong signs in the saddle region
+    assert np.einsum("ij,ij->i", raw, true).min() < 0
+
+
+def test_isotropic_gaussians_use_local_pca():
+    rng = np.random.default_rng(4)
+    true = rng.normal(size=(3000, 3))
+    true /= np.linalg.norm(true, axis=1, keepdims=True)
+    quat = rng.normal(size=(3000, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    got = gaussian_normals(true, quat, np.full((3000, 3), 0.01), np.ones(3000), radius=0.15)
+    assert np.einsum("ij,ij->i", got, true).min() > 0.9
+
+
+def test_isolated_gaussians_fall_back_to_global_centroid():
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    axes = corners / np.sqrt(3.0) * np.where(np.arange(8) % 2 == 0, 1.0, -1.0)[:, None]  # random-ish signs
+    rot = np.zeros((8, 3, 3))
+    for i, a in enumerate(axes):
+        t = np.cross(a, [1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.cross(a, [0.0, 1.0, 0.0])
+        t /= np.linalg.norm(t)
+        rot[i] = np.stack([t, np.cross(a, t), a], axis=1)
+    scales = np.tile([0.1, 0.1, 0.01], (8, 1))
+    got, fallback = gaussian_normals(corners, matrix_to_quaternion(rot), scales, np.ones(8), radius=0.5,
+                                     return_fallback=True)
+    assert fallback.all()
+    np.testing.assert_allclose(got, corners / np.sqrt(3.0), atol=1e-6)
+
+
+def test_rest_pose_normals_follow_gaussian_rotation():
+    rng = np.random.default_rng(5)
+    n = 200
+    q_rest = rng.normal(size=(n, 4))
+    q_rest /= np.linalg.norm(q_rest, axis=1, keepdims=True)
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    local = normals_to_local(q_rest, normals)
+    np.testing.assert_allclose(local_normals_to_world(q_rest, local), normals, atol=1e-6)
+    # pose: rotate every Gaussian by its own rotation d; the normal must rotate with it
+    d = rng.normal(size=(n, 4))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    rd = quaternion_to_matrix(d)
+    q_posed = matrix_to_quaternion(rd @ quaternion_to_matrix(q_rest))
+    np.testing.assert_allclose(local_normals_to_world(q_posed, local), np.einsum("nij,nj->ni", rd, normals),
+                               atol=1e-5)
