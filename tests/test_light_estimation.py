@@ -256,8 +256,6 @@ def test_ring_viewpoints_use_up_axis():
 @pytest.mark.parametrize("name", ["biker.ply", "guitar.ply"])
 def test_real_captures_run(name):
     path = DATA / "splats" / name
-    if not path.exists():
-        pytest.skip(f"{path} not present")
     g = read_capture(path)
     c = alpha_weighted_centroid(g)
     lights = estimate_lights(g, c, k=2)

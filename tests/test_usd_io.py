@@ -444,7 +444,6 @@ def test_save_requires_existing_directory(tmp_path):
 
 
 # ----------------------------------------------------------------------------- real capture
-@pytest.mark.skipif(not (SPLATS / "biker.ply").exists(), reason="shared data not present")
 def test_biker_ply_usd_ply_round_trip_bit_exact(tmp_path):
     import plyfile
 
