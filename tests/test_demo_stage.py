@@ -64,8 +64,29 @@ def test_files_and_stage_metadata(demo, stage):
         assert layer.timeCodesPerSecond == 24.0
 
 
+def room_gaussians(stage):
+    """The room's bricks read back and put in the generator's order (bricks are index subsets)."""
+
+    bricks = [p for p in stage.GetPrimAtPath("/World/Room").GetChildren()]
+    sets = [read_gaussian_prim(p) for p in bricks]
+    return bricks, sets
+
+
+def test_room_bricks_partition_make_room(stage):
+    from usd_gs.bricks import brick_indices
+
+    room = make_room(density=ds.QUICK.room_density, seed=0)
+    bricks, sets = room_gaussians(stage)
+    idx = brick_indices(room.gaussians.positions, ds.QUICK.room_brick_size)
+    assert [str(b.GetName()) for b in bricks] == [f"Brick_{i:04d}" for i in range(len(idx))]
+    assert len(bricks) > 1 and sum(g.count for g in sets) == room.gaussians.count
+    for g, ix in zip(sets, idx, strict=True):
+        np.testing.assert_array_equal(g.positions, room.gaussians.positions[ix])
+        np.testing.assert_array_equal(g.sh, room.gaussians.sh[ix])
+
+
 def test_prims_and_roles(stage):
-    expect = {"/World/Room": "scene", "/World/CesiumMan": "avatar", "/World/Biker": "avatar",
+    expect = {"/World/Room/Brick_0000": "scene", "/World/CesiumMan": "avatar", "/World/Biker": "avatar",
               "/World/Guitar": "object"}
     for path, role in expect.items():
         prim = stage.GetPrimAtPath(path)
@@ -84,13 +105,10 @@ def test_validate_stage_no_problems(stage):
     assert validate_stage(stage) == []
 
 
-def test_room_is_make_room_output(stage):
-    room = make_room(density=ds.QUICK.room_density, seed=0)
-    g = read_gaussian_prim(stage.GetPrimAtPath("/World/Room"))
-    assert g.sh_degree == 1
-    np.testing.assert_array_equal(g.positions, room.gaussians.positions)
-    np.testing.assert_array_equal(g.sh, room.gaussians.sh)
-    assert not stage.GetPrimAtPath("/World/Room").GetAttribute("positions").GetTimeSamples()  # static
+def test_room_is_static_sh1(stage):
+    bricks, sets = room_gaussians(stage)
+    assert all(g.sh_degree == 1 for g in sets)
+    assert not any(b.GetAttribute("positions").GetTimeSamples() for b in bricks)  # static
 
 
 def test_lamp_ground_truth(stage):
@@ -104,11 +122,15 @@ def test_lamp_ground_truth(stage):
     np.testing.assert_allclose(inten, [lp.intensity for lp in lamps], atol=0)
     np.testing.assert_allclose(np.array(world.GetCustomDataByKey("usdgs:demo:roomSize")), [8, 3, 8])
     # The room's emitters (the brightest Gaussians) sit at the recorded lamps.
+    from usd_gs.bricks import brick_indices
+    from usd_gs.gaussians import GaussianSet
+
     room = make_room(density=ds.QUICK.room_density)
-    g = read_gaussian_prim(stage.GetPrimAtPath("/World/Room"))
+    order = np.concatenate(brick_indices(room.gaussians.positions, ds.QUICK.room_brick_size))
+    g = GaussianSet.concatenate(room_gaussians(stage)[1])
     lum = (0.5 + sh3dgs.C0 * g.sh[:, 0]) @ np.array([0.2126, 0.7152, 0.0722])
     bright = np.argsort(lum)[-2 * 48:]
-    assert np.all(room.part[bright] == PART_LAMP)
+    assert np.all(room.part[order[bright]] == PART_LAMP)
     d = np.linalg.norm(g.positions[bright, None, :] - pos[None], axis=2).min(axis=1)
     assert d.max() < 0.07
 
@@ -296,7 +318,8 @@ def test_options_change_the_output(tmp_path):
     prim = st.GetPrimAtPath("/World/CesiumMan")
     assert prim.GetAttribute("positions").GetTimeSamples() == [1.0, 2.0, 3.0]
     assert read_gaussian_prim(prim, 2).count == 700
-    assert read_gaussian_prim(st.GetPrimAtPath("/World/Room")).count == make_room(density=20.0).gaussians.count
+    assert sum(read_gaussian_prim(b).count for b in st.GetPrimAtPath("/World/Room").GetChildren()) == \
+        make_room(density=20.0).gaussians.count
     assert "frames=3" in st.GetPrimAtPath("/World").GetCustomDataByKey("usdgs:demo:generator")
 
 

@@ -48,13 +48,21 @@ def cmd_import(args) -> int:
     gaussians = read_gaussian_file(args.input)
     root = path.GetPrefixes()[0]
     stage = new_stage(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
-    prim = write_gaussian_prim(stage, str(path), gaussians, keep_raw=not args.no_raw, precision=args.precision)
-    if args.role:
-        apply_role(prim, args.role)
+    bricks = ""
+    if args.brick_size is not None:
+        from .bricks import write_bricked
+
+        n = len(write_bricked(stage, str(path), gaussians, args.brick_size, keep_raw=not args.no_raw,
+                              precision=args.precision, role=args.role))
+        bricks = f" in {n} bricks"
+    else:
+        prim = write_gaussian_prim(stage, str(path), gaussians, keep_raw=not args.no_raw, precision=args.precision)
+        if args.role:
+            apply_role(prim, args.role)
     save_stage_atomic(stage, args.output)
     if not args.quiet:
-        print(f"wrote {args.output}: {path} with {gaussians.count:,} Gaussians, SH degree {gaussians.sh_degree}"
-              f", {args.precision} precision")
+        print(f"wrote {args.output}: {path} with {gaussians.count:,} Gaussians{bricks}, SH degree "
+              f"{gaussians.sh_degree}, {args.precision} precision")
     return 0
 
 
@@ -75,6 +83,9 @@ def register_import(sub, formatter):
     p.add_argument("--meters-per-unit", type=float, default=1.0, help="stage metersPerUnit metadata")
     p.add_argument("--precision", choices=("float", "half"), default="float",
                    help="author the float attributes or their half (*h) variants")
+    p.add_argument("--brick-size", type=int, metavar="N",
+                   help="split into spatial bricks of at most N Gaussians: an Xform at --prim with children "
+                        "Brick_0000... (shadows then re-author only the bricks they touch)")
     p.add_argument("--no-raw", action="store_true",
                    help="do not keep the raw PLY values (smaller file; round trip no longer bit-exact)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")

@@ -9,8 +9,10 @@ its animated data is tens of MB. Layout on disk, for ``-o stages/demo.usda``:
   ``/World/Camera``. Its ``subLayers`` are the binary data layers (relative paths
   ``./demo_data/<name>.usdc``, strongest first in the order cesium_man, biker, guitar,
   room; they define disjoint prims, so the order does not matter).
-- ``stages/demo_data/room.usdc``: ``/World/Room``, scene Gaussians from
-  :func:`usd_gs.room_scene.make_room` (static, SH degree 1), ``usdgs:role`` scene.
+- ``stages/demo_data/room.usdc``: ``/World/Room`` (Xform), scene Gaussians from
+  :func:`usd_gs.room_scene.make_room` (static, SH degree 1) split into spatial bricks
+  ``/World/Room/Brick_NNNN`` of at most ``room_brick_size`` Gaussians (``usd_gs.bricks``),
+  each with ``usdgs:role`` scene, so shadows re-author only the bricks they touch.
 - ``stages/demo_data/cesium_man.usdc``: ``/World/CesiumMan``, role avatar, SH degree 0:
   surface Gaussians of ``humans/CesiumMan.glb`` skinned by its own walk clip (linear
   blend skinning, :func:`usd_gs.avatar_from_mesh.posed_avatar_frames`), time-sampled at
@@ -140,6 +142,7 @@ class DemoOptions:
     biker_gaussians: int | None = None
     guitar_gaussians: int | None = None
     seed: int = 0
+    room_brick_size: int = 12000
 
     def check(self) -> None:
         if self.frames < 1:
@@ -148,13 +151,16 @@ class DemoOptions:
             raise UserError(f"--avatar-gaussians must be >= 1, got {self.avatar_gaussians}")
         if not (self.room_density > 0 and math.isfinite(self.room_density)):
             raise UserError(f"--room-density must be a positive number of Gaussians per m^2, got {self.room_density}")
+        if self.room_brick_size < 1:
+            raise UserError(f"room brick size must be >= 1, got {self.room_brick_size}")
         for name in ("biker_gaussians", "guitar_gaussians"):
             v = getattr(self, name)
             if v is not None and v < 1:
                 raise UserError(f"{name} must be >= 1, got {v}")
 
 
-QUICK = DemoOptions(frames=8, avatar_gaussians=5000, room_density=60.0, biker_gaussians=8000, guitar_gaussians=5000)
+QUICK = DemoOptions(frames=8, avatar_gaussians=5000, room_density=60.0, biker_gaussians=8000, guitar_gaussians=5000,
+                    room_brick_size=4000)
 """``--quick``: a tiny demo for tests (about 30k Gaussians in all, 8 frames)."""
 
 
@@ -293,14 +299,13 @@ def _subsample(g, n: int | None, seed: int):
 
 
 def _write_room(opts: DemoOptions, path: Path):
+    from .bricks import write_bricked
     from .room_scene import make_room
-    from .schema import apply_role
-    from .usd_io import save_stage_atomic, write_gaussian_prim
+    from .usd_io import save_stage_atomic
 
     room = make_room(size=ROOM_SIZE, density=opts.room_density, seed=opts.seed, label="/World/Room")
     stage = _new_layer_stage(opts.frames)
-    prim = write_gaussian_prim(stage, "/World/Room", room.gaussians, keep_raw=False)
-    apply_role(prim, "scene")
+    write_bricked(stage, "/World/Room", room.gaussians, opts.room_brick_size, keep_raw=False, role="scene")
     save_stage_atomic(stage, path)
     return room
 
