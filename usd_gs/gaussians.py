@@ -261,12 +261,14 @@ class GaussianSet:
         q = u @ vt
         reflect = np.linalg.det(q) < 0
         pos = self.positions.astype(np.float64) @ lin.T + t
-        r = self.rotation_matrices()
-        r_new = np.einsum("ij,njk->nik", q, r)
+        quat = self.unit_quaternions()
         if reflect:
-            # Flipping the first local axis leaves the covariance unchanged and makes det +1.
-            r_new[:, :, 0] *= -1.0
-        quat = matrix_to_quaternion(r_new)
+            # Q = Q' F with F = diag(-1, 1, 1) and Q' a rotation. The new frame Q R F (its first
+            # local axis flipped: same covariance, det +1) is Q' (F R F), and F R F has the
+            # quaternion (w, x, -y, -z).
+            quat[:, 2:] *= -1.0
+        proper = q @ np.diag([-1.0, 1.0, 1.0]) if reflect else q
+        quat = quaternion_multiply(matrix_to_quaternion(proper[None])[0], quat)
         sh = sh3dgs.rotate_coefficients(self.sh, q) if (rotate_sh and self.sh_degree > 0) else self.sh.copy()
         log_scales = None if self.log_scales is None else (self.log_scales.astype(np.float64) + np.log(s))
         return GaussianSet(pos, quat, self.scales.astype(np.float64) * s, self.opacities.copy(), sh,
@@ -295,6 +297,19 @@ class GaussianSet:
         extras = {k: np.concatenate([g.extras[k] for g in sets]) for k in sorted(keys)}
         return GaussianSet(cat("positions"), cat("orientations"), cat("scales"), cat("opacities"),
                            cat("sh"), cat("log_scales"), cat("logit_opacities"), extras, label=label)
+
+
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` of quaternions (w, x, y, z), broadcasting (..., 4) float64.
+    The rotation of ``a * b`` applies ``b`` first, then ``a``."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
 
 
 def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
