@@ -1,0 +1,692 @@
+"""CPU 3D Gaussian Splatting rasteriser (numba): the standard 3DGS forward pass.
+
+Image formation (shared by :mod:`numba_kernels.rasterize_reference`, which implements the
+same definition by brute force in float64):
+
+1. View transform. Each camera k is given as ``view_rot[k]`` (3x3) and ``view_t[k]`` (3,)
+   mapping a world point ``p`` to *view coordinates* ``q = view_rot @ p + view_t`` with
+   ``q = (x right, y down, z depth)``; ``z > 0`` in front of the camera. (For a USD camera,
+   which looks down its local -Z with +Y up, ``view_rot = diag(1, -1, -1) @ R^T`` where
+   ``R`` is world-from-camera; see ``usd_gs/camera.py``.) Pixel coordinates of the centre:
+   ``u = fx x / z + cx``, ``v = fy y / z + cy``; the image spans ``[0, W] x [0, H]`` and
+   pixel (row i, column j) has its centre at ``(j + 0.5, i + 0.5)``.
+2. Culling: a Gaussian is dropped for a camera when ``z <= near`` or ``z > far``, when its
+   opacity is below 1/255, when its 2D covariance is singular, or when its support (below)
+   contains no pixel centre of the image.
+3. EWA projection (Zwicker et al. 2002, as in graphdeco-inria diff-gaussian-rasterization):
+   ``J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]]`` with ``x'/z`` and ``y'/z``
+   clamped to the guard band ``c +- guard * h`` where ``[c - h, c + h]`` is the image's
+   extent in ``x/z`` (resp. ``y/z``); ``guard = 1.3`` as in 3DGS. 2D covariance
+   ``Sigma2 = J V Sigma V^T J^T + dilation * I`` (``V = view_rot``, ``Sigma = R diag(s)^2 R^T``,
+   ``dilation = 0.3`` px^2 is the 3DGS low-pass filter), conic ``= Sigma2^-1``.
+4. Support: pixel centres with Mahalanobis distance ``d^T conic d <= 9`` (the 3-sigma ellipse).
+   3DGS evaluates every pixel of the 16x16 tiles that the square of radius
+   ``ceil(3 sqrt(lambda_max))`` touches; we cut at the ellipse instead so that the image
+   does not depend on the tile size (the difference is at most ``opacity * exp(-4.5)`` for
+   each pixel just outside the ellipse). Tile binning uses the ellipse's exact bounding box
+   ``3 sqrt(Sigma2_xx)`` by ``3 sqrt(Sigma2_yy)`` (tighter than the 3DGS square for
+   elongated splats), shrunk further where ``opacity * exp(-q/2) < 1/255`` anyway.
+5. Per pixel: ``alpha = min(0.99, opacity exp(-q/2))``; skipped when ``alpha < 1/255``.
+   Front-to-back in order of increasing ``float32(z)``, ties broken by lower Gaussian
+   index: ``C += c alpha T``, ``T *= 1 - alpha``; a Gaussian that would bring ``T`` below
+   1e-4 is not blended and ends the pixel (3DGS early termination).
+6. Colour ``c = max(0, 0.5 + SH(dir))`` in the 3DGS basis (``usd_gs/sh3dgs.py``), degree
+   0..3, with ``dir = normalise(mu - camera centre)`` (world space).
+7. Outputs per camera: premultiplied colour ``sum c alpha T`` (f32, add ``T * background``
+   for the final image), final transmittance ``T`` (alpha = 1 - T) and the expected depth
+   ``sum(z alpha T) / (1 - T)`` (the weights sum to 1 - T exactly; 0 where nothing blended).
+
+Pipeline (all numba, prange over independent work):
+1. ``_cull`` (prange over Gaussians): a conservative per-camera visibility bit mask from a
+   cheap bound on the footprint (no quaternion work), so off-screen splats cost ~10 flops.
+2. prefix sum of the visible counts, then ``_write_entries`` (prange over Gaussians): the
+   full EWA projection and SH colour of each visible (Gaussian, camera) pair, written to a
+   compacted 64-byte float32 record (colour evaluated once per camera centre, so the six
+   cube faces share it).
+3. ``_bin_tiles``: parallel stable counting sort of entries into tiles (per-chunk
+   histograms, prefix sum, scatter); no Python lists.
+4. ``_blend`` (prange over tiles in a fixed shuffled order for load balance): stable radix
+   sort of the tile's list (which is in increasing entry index) by float32 depth bits, so
+   the order is deterministic (depth, then Gaussian index); records are copied in batches of
+   64 into a local buffer (overlapping the cache misses of the random reads); then blend
+   Gaussian-major: each splat visits only the pixels of its ellipse's exact per-row span
+   inside the tile, skips rows whose pixels have all terminated, and the tile stops once
+   every pixel has terminated. The result does not depend on the tile size or thread count.
+Several cameras of equal size (e.g. the six cube faces) are rendered in one call.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2_0 = 1.0925484305920792
+SH_C2_1 = -1.0925484305920792
+SH_C2_2 = 0.31539156525252005
+SH_C2_3 = -1.0925484305920792
+SH_C2_4 = 0.5462742152960396
+SH_C3_0 = -0.5900435899266435
+SH_C3_1 = 2.890611442640554
+SH_C3_2 = -0.4570457994644658
+SH_C3_3 = 0.3731763325901154
+SH_C3_4 = -0.4570457994644658
+SH_C3_5 = 1.445305721320277
+SH_C3_6 = -0.5900435899266435
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+SUPPORT_Q = 9.0  # 3 sigma
+DEFAULT_DILATION = 0.3
+DEFAULT_GUARD = 1.3
+TILE = 16
+
+# entry record columns (float32, padded to 16 = 64 bytes): centre (px), conic, opacity,
+# colour, view depth, pixel bounding box (inclusive), support cut q
+_MX, _MY, _CA, _CB, _CC, _OP, _R, _G, _B, _Z, _J0, _J1, _I0, _I1, _QC = range(15)
+_NF = 16
+_GATHER = 64  # records copied per batch in _blend_tile
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _support_q(opacity):
+    """Largest Mahalanobis distance^2 where alpha can reach 1/255 (<= 9), with a small
+    conservative margin (it only sizes bounding boxes); -1 when opacity < 1/255."""
+    if not opacity >= ALPHA_MIN:
+        return -1.0
+    q = 2.0 * math.log(opacity / ALPHA_MIN)
+    q = q * (1.0 + 1e-5) + 1e-5
+    return min(SUPPORT_Q * (1.0 + 1e-5), q)
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _pixel_range(m, e, n):
+    """Inclusive pixel index range with centres (k + 0.5) in [m - e, m + e], clamped to [0, n-1];
+    empty (hi < lo) when m or e is not finite."""
+    if not (math.isfinite(m) and math.isfinite(e)):
+        return 0, -1
+    lo = math.ceil(m - e - 0.5)
+    hi = math.floor(m + e - 0.5)
+    if lo < 0:
+        lo = 0
+    if hi > n - 1:
+        hi = n - 1
+    return int(lo), int(hi)
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _jacobian(x, y, z, intr, clamp):
+    """Non-zero entries (j00, j02, j11, j12) of the projection Jacobian at the point clamped
+    to the guard band ``clamp = (x/z min, x/z max, y/z min, y/z max)``."""
+    iz = 1.0 / z
+    tx = min(clamp[1], max(clamp[0], x * iz))
+    ty = min(clamp[3], max(clamp[2], y * iz))
+    return intr[0] * iz, -intr[0] * tx * iz, intr[1] * iz, -intr[1] * ty * iz
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _rotation_scale(qw, qx, qy, qz, sx, sy, sz):
+    """R diag(s) (row-major 9-tuple) for the normalised quaternion (w, x, y, z); zero -> identity."""
+    qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    if qn > 0.0 and math.isfinite(qn):
+        qw /= qn
+        qx /= qn
+        qy /= qn
+        qz /= qn
+    else:
+        qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+    sx = abs(sx)
+    sy = abs(sy)
+    sz = abs(sz)
+    return ((1.0 - 2.0 * (qy * qy + qz * qz)) * sx, 2.0 * (qx * qy - qw * qz) * sy, 2.0 * (qx * qz + qw * qy) * sz,
+            2.0 * (qx * qy + qw * qz) * sx, (1.0 - 2.0 * (qx * qx + qz * qz)) * sy, 2.0 * (qy * qz - qw * qx) * sz,
+            2.0 * (qx * qz - qw * qy) * sx, 2.0 * (qy * qz + qw * qx) * sy, (1.0 - 2.0 * (qx * qx + qy * qy)) * sz)
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _project_full(x, y, z, rs, vr, intr, clamp, width, height, dilation, qcut):
+    """EWA projection. Returns (ok, u, v, conic_a, conic_b, conic_c, j0, j1, i0, i1)."""
+    j00, j02, j11, j12 = _jacobian(x, y, z, intr, clamp)
+    # M = J V (2x3)
+    m00 = j00 * vr[0, 0] + j02 * vr[2, 0]
+    m01 = j00 * vr[0, 1] + j02 * vr[2, 1]
+    m02 = j00 * vr[0, 2] + j02 * vr[2, 2]
+    m10 = j11 * vr[1, 0] + j12 * vr[2, 0]
+    m11 = j11 * vr[1, 1] + j12 * vr[2, 1]
+    m12 = j11 * vr[1, 2] + j12 * vr[2, 2]
+    # A = M R diag(s); Sigma2 = A A^T + dilation I
+    a00 = m00 * rs[0] + m01 * rs[3] + m02 * rs[6]
+    a01 = m00 * rs[1] + m01 * rs[4] + m02 * rs[7]
+    a02 = m00 * rs[2] + m01 * rs[5] + m02 * rs[8]
+    a10 = m10 * rs[0] + m11 * rs[3] + m12 * rs[6]
+    a11 = m10 * rs[1] + m11 * rs[4] + m12 * rs[7]
+    a12 = m10 * rs[2] + m11 * rs[5] + m12 * rs[8]
+    ca = a00 * a00 + a01 * a01 + a02 * a02 + dilation
+    cb = a00 * a10 + a01 * a11 + a02 * a12
+    cc = a10 * a10 + a11 * a11 + a12 * a12 + dilation
+    det = ca * cc - cb * cb
+    if not (det > 0.0 and math.isfinite(det)):
+        return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0, -1, 0, -1)
+    u = intr[0] * x / z + intr[2]
+    v = intr[1] * y / z + intr[3]
+    j0, j1 = _pixel_range(u, math.sqrt(qcut * ca), width)
+    i0, i1 = _pixel_range(v, math.sqrt(qcut * cc), height)
+    if j1 < j0 or i1 < i0:
+        return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0, -1, 0, -1)
+    idet = 1.0 / det
+    return (True, u, v, cc * idet, -cb * idet, ca * idet, j0, j1, i0, i1)
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _sh_color(sh, g, dx, dy, dz):
+    """(r, g, b) = max(0, 0.5 + SH(dir)) for Gaussian g, dir = (dx, dy, dz) unit (3DGS basis)."""
+    k = sh.shape[1]
+    r = SH_C0 * np.float64(sh[g, 0, 0])
+    gg = SH_C0 * np.float64(sh[g, 0, 1])
+    b = SH_C0 * np.float64(sh[g, 0, 2])
+    if k >= 4:
+        b1 = -SH_C1 * dy
+        b2 = SH_C1 * dz
+        b3 = -SH_C1 * dx
+        r += b1 * sh[g, 1, 0] + b2 * sh[g, 2, 0] + b3 * sh[g, 3, 0]
+        gg += b1 * sh[g, 1, 1] + b2 * sh[g, 2, 1] + b3 * sh[g, 3, 1]
+        b += b1 * sh[g, 1, 2] + b2 * sh[g, 2, 2] + b3 * sh[g, 3, 2]
+    if k >= 9:
+        xx = dx * dx
+        yy = dy * dy
+        zz = dz * dz
+        xy = dx * dy
+        yz = dy * dz
+        xz = dx * dz
+        basis = (SH_C2_0 * xy, SH_C2_1 * yz, SH_C2_2 * (2.0 * zz - xx - yy), SH_C2_3 * xz, SH_C2_4 * (xx - yy))
+        for m in range(5):
+            r += basis[m] * sh[g, 4 + m, 0]
+            gg += basis[m] * sh[g, 4 + m, 1]
+            b += basis[m] * sh[g, 4 + m, 2]
+        if k >= 16:
+            basis3 = (SH_C3_0 * dy * (3.0 * xx - yy), SH_C3_1 * xy * dz, SH_C3_2 * dy * (4.0 * zz - xx - yy),
+                      SH_C3_3 * dz * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3_4 * dx * (4.0 * zz - xx - yy),
+                      SH_C3_5 * dz * (xx - yy), SH_C3_6 * dx * (xx - 3.0 * yy))
+            for m in range(7):
+                r += basis3[m] * sh[g, 9 + m, 0]
+                gg += basis3[m] * sh[g, 9 + m, 1]
+                b += basis3[m] * sh[g, 9 + m, 2]
+    r += 0.5
+    gg += 0.5
+    b += 0.5
+    # max(0, .) that also maps NaN to 0
+    return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
+
+
+@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+def _cull(positions, scales, opacities, include, cams, width, height, dilation, vis):
+    """Fill ``vis`` (N,) int64: per Gaussian, the bit mask of the cameras whose image its support
+    may touch (conservative).
+
+    cams (K, 22) float64 rows: view_rot (9, row-major), view_t (3), fx, fy, cx, cy, near, far,
+    guard-band clamp (x/z min, max, y/z min, max) as built by ``rasterize``.
+    """
+    n = positions.shape[0]
+    ncam = cams.shape[0]
+    use_mask = include.shape[0] == n
+    for g in prange(n):
+        vis[g] = 0
+        if use_mask and not include[g]:
+            continue
+        op = np.float64(opacities[g])
+        if not op >= ALPHA_MIN:  # also drops NaN
+            continue
+        op = min(1.0, op)
+        px = np.float64(positions[g, 0])
+        py = np.float64(positions[g, 1])
+        pz = np.float64(positions[g, 2])
+        bits = 0
+        qcut = -1.0
+        smax = 0.0
+        for k in range(ncam):
+            c = cams[k]
+            z = c[6] * px + c[7] * py + c[8] * pz + c[11]
+            if not (z > c[16] and z <= c[17]):
+                continue
+            x = c[0] * px + c[1] * py + c[2] * pz + c[9]
+            y = c[3] * px + c[4] * py + c[5] * pz + c[10]
+            iz = 1.0 / z
+            u = c[12] * x * iz + c[14]
+            v = c[13] * y * iz + c[15]
+            if u >= 0.0 and u <= width and v >= 0.0 and v <= height:
+                bits |= np.int64(1) << k
+                continue
+            if qcut < 0.0:
+                qcut = _support_q(op)
+                smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
+                                                              abs(np.float64(scales[g, 2]))))
+            # lambda_max(J V Sigma V^T J^T) <= smax^2 ||J||_F^2 bounds the bounding-box half-extent
+            tx = min(c[19], max(c[18], x * iz))
+            ty = min(c[21], max(c[20], y * iz))
+            jf2 = (c[12] * iz) ** 2 * (1.0 + tx * tx) + (c[13] * iz) ** 2 * (1.0 + ty * ty)
+            eb = math.sqrt(qcut * (smax * smax * jf2 + dilation)) * (1.0 + 1e-6) + 1e-6
+            j0, j1 = _pixel_range(u, eb, width)
+            i0, i1 = _pixel_range(v, eb, height)
+            if j1 >= j0 and i1 >= i0:
+                bits |= np.int64(1) << k
+        vis[g] = bits
+
+
+@njit(cache=True, error_model="numpy")
+def _popcount(x):
+    c = 0
+    while x:
+        x &= x - 1
+        c += 1
+    return c
+
+
+@njit(cache=True, error_model="numpy")
+def _visible_offsets(vis, off):
+    """Fill ``off`` (N+1,) with the exclusive prefix sum of the per-Gaussian camera counts."""
+    n = vis.shape[0]
+    off[0] = 0
+    acc = 0
+    for g in range(n):
+        b = vis[g]
+        if b != 0:
+            acc += _popcount(b)
+        off[g + 1] = acc
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp, cam_pos,
+                    width, height, dilation, rec, info, depth32):
+    """Entries of Gaussian g for the cameras in ``bits`` (see ``_write_entries``)."""
+    ncam = view_rot.shape[0]
+    e = off[g]
+    op = min(1.0, np.float64(opacities[g]))  # >= 1/255 (checked by _cull)
+    qcut = _support_q(op)
+    px = np.float64(positions[g, 0])
+    py = np.float64(positions[g, 1])
+    pz = np.float64(positions[g, 2])
+    rs = _rotation_scale(np.float64(quats[g, 0]), np.float64(quats[g, 1]), np.float64(quats[g, 2]),
+                         np.float64(quats[g, 3]), np.float64(scales[g, 0]), np.float64(scales[g, 1]),
+                         np.float64(scales[g, 2]))
+    last = -1
+    col = (0.0, 0.0, 0.0)
+    for k in range(ncam):
+        if not (bits >> k) & 1:
+            continue
+        vr = view_rot[k]
+        x = vr[0, 0] * px + vr[0, 1] * py + vr[0, 2] * pz + view_t[k, 0]
+        y = vr[1, 0] * px + vr[1, 1] * py + vr[1, 2] * pz + view_t[k, 1]
+        z = vr[2, 0] * px + vr[2, 1] * py + vr[2, 2] * pz + view_t[k, 2]
+        res = _project_full(x, y, z, rs, vr, intr[k], clamp[k], width, height, dilation, qcut)
+        if not res[0]:
+            info[e, 0] = -1
+            depth32[e] = np.inf
+            e += 1
+            continue
+        if last < 0 or (cam_pos[k, 0] != cam_pos[last, 0] or cam_pos[k, 1] != cam_pos[last, 1]
+                        or cam_pos[k, 2] != cam_pos[last, 2]):
+            dx = px - cam_pos[k, 0]
+            dy = py - cam_pos[k, 1]
+            dz = pz - cam_pos[k, 2]
+            dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if dn > 0.0:
+                dx /= dn
+                dy /= dn
+                dz /= dn
+            col = _sh_color(sh, g, dx, dy, dz)
+            last = k
+        rec[e, _MX] = res[1]
+        rec[e, _MY] = res[2]
+        rec[e, _CA] = res[3]
+        rec[e, _CB] = res[4]
+        rec[e, _CC] = res[5]
+        rec[e, _OP] = op
+        rec[e, _R] = col[0]
+        rec[e, _G] = col[1]
+        rec[e, _B] = col[2]
+        rec[e, _Z] = z
+        rec[e, _J0] = res[6]
+        rec[e, _J1] = res[7]
+        rec[e, _I0] = res[8]
+        rec[e, _I1] = res[9]
+        rec[e, _QC] = qcut
+        info[e, 0] = k
+        info[e, 1] = res[6]
+        info[e, 2] = res[7]
+        info[e, 3] = res[8]
+        info[e, 4] = res[9]
+        depth32[e] = np.float32(z)
+        e += 1
+
+
+@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+def _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
+                   cam_pos, width, height, dilation, rec, info, depth32):
+    """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order.
+
+    Fills rec (M,16) float32 records (rows of rejected entries are left unset: never read),
+    info (M,5) int32 (camera, or -1 when the exact test rejects it; pixel bbox j0, j1, i0, i1)
+    and depth32 (M,) float32 view depth (inf when rejected).
+    """
+    n = positions.shape[0]
+    for g in prange(n):
+        bits = vis[g]
+        if bits == 0:
+            continue
+        _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp,
+                        cam_pos, width, height, dilation, rec, info, depth32)
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _bin_tiles(info, ncam, tiles_x, tiles_y, tile, nchunks):
+    """Stable counting sort of entries into tiles (per-chunk histograms, prefix sum, scatter).
+
+    Returns tile_start (T+1,) and tile_list (P,) int32 entry indices, increasing within a tile.
+    """
+    m = info.shape[0]
+    per_cam = tiles_x * tiles_y
+    ntiles = per_cam * ncam
+    bounds = np.linspace(0, m, nchunks + 1).astype(np.int64)
+    hist = np.zeros((nchunks, ntiles), np.int64)
+    for c in prange(nchunks):
+        for r in range(bounds[c], bounds[c + 1]):
+            k = info[r, 0]
+            if k < 0:
+                continue
+            base = k * per_cam
+            for ty in range(info[r, 3] // tile, info[r, 4] // tile + 1):
+                for tx in range(info[r, 1] // tile, info[r, 2] // tile + 1):
+                    hist[c, base + ty * tiles_x + tx] += 1
+    tile_start = np.empty(ntiles + 1, np.int64)
+    acc = 0
+    for t in range(ntiles):
+        tile_start[t] = acc
+        for c in range(nchunks):
+            cnt = hist[c, t]
+            hist[c, t] = acc
+            acc += cnt
+    tile_start[ntiles] = acc
+    tile_list = np.empty(acc, np.int32)
+    for c in prange(nchunks):
+        for r in range(bounds[c], bounds[c + 1]):
+            k = info[r, 0]
+            if k < 0:
+                continue
+            base = k * per_cam
+            for ty in range(info[r, 3] // tile, info[r, 4] // tile + 1):
+                for tx in range(info[r, 1] // tile, info[r, 2] // tile + 1):
+                    t = base + ty * tiles_x + tx
+                    tile_list[hist[c, t]] = r
+                    hist[c, t] += 1
+    return tile_start, tile_list
+
+
+@njit(cache=True, error_model="numpy")
+def _sort_by_depth(dkey, idx):
+    """Sort ``idx`` (int64, increasing) by ``dkey`` (uint32 float32-depth bits), stably, in place.
+
+    Stable LSD radix sort, 8-bit digits (passes whose digit is constant are skipped);
+    insertion sort for short lists. Stability keeps equal depths in increasing index order.
+    """
+    n = dkey.shape[0]
+    if n <= 48:
+        for a in range(1, n):
+            kd = dkey[a]
+            ki = idx[a]
+            b = a - 1
+            while b >= 0 and dkey[b] > kd:
+                dkey[b + 1] = dkey[b]
+                idx[b + 1] = idx[b]
+                b -= 1
+            dkey[b + 1] = kd
+            idx[b + 1] = ki
+        return
+    dk2 = np.empty_like(dkey)
+    ix2 = np.empty_like(idx)
+    count = np.empty(257, np.int64)
+    for shift in range(0, 32, 8):
+        sh = np.uint32(shift)
+        count[:] = 0
+        for a in range(n):
+            count[((dkey[a] >> sh) & np.uint32(255)) + 1] += 1
+        skip = False
+        for b in range(1, 257):
+            if count[b] == n:
+                skip = True
+                break
+        if skip:
+            continue
+        for b in range(1, 257):
+            count[b] += count[b - 1]
+        for a in range(n):
+            d = (dkey[a] >> sh) & np.uint32(255)
+            pos = count[d]
+            count[d] = pos + 1
+            dk2[pos] = dkey[a]
+            ix2[pos] = idx[a]
+        dkey[:] = dk2
+        idx[:] = ix2
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _blend_tile(rec, depth_bits, tile_list, s0, cnt, k, x0, y0, x1, y1, tile, color, trans, depth):
+    """Blend one tile's ``cnt`` entries ``tile_list[s0:s0+cnt]`` into camera k's pixels
+    [y0..y1] x [x0..x1]. Returns (entries processed, pixel evaluations)."""
+    tw = x1 - x0 + 1
+    npix = tw * (y1 - y0 + 1)
+    dkey = np.empty(cnt, np.uint32)
+    ent = np.empty(cnt, np.int64)
+    for s in range(cnt):
+        e = tile_list[s0 + s]
+        ent[s] = e
+        dkey[s] = depth_bits[e]
+    _sort_by_depth(dkey, ent)
+    T = np.ones(tile * tile, np.float64)
+    C = np.zeros((tile * tile, 3), np.float64)
+    D = np.zeros(tile * tile, np.float64)
+    done = np.zeros(tile * tile, np.bool_)
+    row_done = np.zeros(tile, np.int64)
+    ndone = 0
+    nev = 0
+    s = 0
+    # records are gathered in chunks into a local buffer: a tight copy loop overlaps the
+    # cache misses of these random reads, the blending loop below would serialise them
+    buf = np.empty((_GATHER, _NF), np.float32)
+    while s < cnt and ndone < npix:
+        b = s % _GATHER
+        if b == 0:
+            for c in range(min(_GATHER, cnt - s)):
+                e = ent[s + c]
+                for f in range(_NF):
+                    buf[c, f] = rec[e, f]
+        s += 1
+        mx = np.float64(buf[b, _MX])
+        my = np.float64(buf[b, _MY])
+        ca = np.float64(buf[b, _CA])
+        cb = np.float64(buf[b, _CB])
+        cc = np.float64(buf[b, _CC])
+        op = np.float64(buf[b, _OP])
+        cr = np.float64(buf[b, _R])
+        cg = np.float64(buf[b, _G])
+        cbl = np.float64(buf[b, _B])
+        z = np.float64(buf[b, _Z])
+        qc = np.float64(buf[b, _QC])
+        detc = ca * cc - cb * cb
+        ja = max(int(buf[b, _J0]), x0)
+        jb = min(int(buf[b, _J1]), x1)
+        ia = max(int(buf[b, _I0]), y0)
+        ib = min(int(buf[b, _I1]), y1)
+        for i in range(ia, ib + 1):
+            ri = i - y0
+            if row_done[ri] == tw:
+                continue
+            dy = i + 0.5 - my
+            disc = ca * qc - dy * dy * detc
+            if disc < 0.0:
+                continue
+            sq = math.sqrt(disc)
+            lo = math.ceil(mx + (-cb * dy - sq) / ca - 0.5 - 1e-4)
+            hi = math.floor(mx + (-cb * dy + sq) / ca - 0.5 + 1e-4)
+            jlo = max(ja, lo)
+            jhi = min(jb, hi)
+            row = ri * tw - x0
+            for j in range(jlo, jhi + 1):
+                p = row + j
+                if done[p]:
+                    continue
+                nev += 1
+                dx = j + 0.5 - mx
+                q = ca * dx * dx + 2.0 * cb * dx * dy + cc * dy * dy
+                if not q <= SUPPORT_Q:
+                    continue
+                a = min(ALPHA_MAX, op * math.exp(-0.5 * q))
+                if a < ALPHA_MIN:
+                    continue
+                tp = T[p]
+                tn = tp * (1.0 - a)
+                if tn < T_MIN:
+                    done[p] = True
+                    ndone += 1
+                    row_done[ri] += 1
+                    continue
+                w = a * tp
+                C[p, 0] += cr * w
+                C[p, 1] += cg * w
+                C[p, 2] += cbl * w
+                D[p] += z * w
+                T[p] = tn
+    for i in range(y0, y1 + 1):
+        row = (i - y0) * tw - x0
+        for j in range(x0, x1 + 1):
+            p = row + j
+            color[k, i, j, 0] = C[p, 0]
+            color[k, i, j, 1] = C[p, 1]
+            color[k, i, j, 2] = C[p, 2]
+            trans[k, i, j] = T[p]
+            wsum = 1.0 - T[p]
+            depth[k, i, j] = D[p] / wsum if wsum > 0.0 else 0.0
+    return s, nev
+
+
+@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+def _blend(rec, depth_bits, tile_start, tile_list, order, ncam, width, height, tiles_x, tiles_y, tile):
+    """Per tile (prange): order its entries by (float32 depth, entry index), blend front to back.
+
+    Returns colour (K,H,W,3), transmittance (K,H,W), expected depth (K,H,W) float32 and the number
+    of entries each tile processed before all its pixels terminated and of pixel evaluations (T,) each.
+    """
+    color = np.zeros((ncam, height, width, 3), np.float32)
+    trans = np.ones((ncam, height, width), np.float32)
+    depth = np.zeros((ncam, height, width), np.float32)  # expected depth
+    per_cam = tiles_x * tiles_y
+    ntiles = tile_start.shape[0] - 1
+    processed = np.zeros(ntiles, np.int64)
+    evals = np.zeros(ntiles, np.int64)
+    for oi in prange(ntiles):
+        t = order[oi]
+        s0 = tile_start[t]
+        cnt = tile_start[t + 1] - s0
+        if cnt == 0:
+            continue
+        k = t // per_cam
+        tt = t - k * per_cam
+        ty = tt // tiles_x
+        tx = tt - ty * tiles_x
+        x0 = tx * tile
+        y0 = ty * tile
+        x1 = min(x0 + tile, width) - 1
+        y1 = min(y0 + tile, height) - 1
+        s, nev = _blend_tile(rec, depth_bits, tile_list, s0, cnt, k, x0, y0, x1, y1, tile, color, trans, depth)
+        processed[t] = s
+        evals[t] = nev
+    return color, trans, depth, processed, evals
+
+
+def _aligned_empty(shape, dtype, align=64):
+    """np.empty whose data pointer is a multiple of ``align`` bytes."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    buf = np.empty(nbytes + align, np.uint8)
+    start = (-buf.ctypes.data) % align
+    return buf[start:start + nbytes].view(dtype).reshape(shape)
+
+
+def _tile_order(ntiles: int) -> np.ndarray:
+    """Fixed pseudo-random permutation of tiles so static prange chunks get balanced work."""
+    return np.random.default_rng(12345).permutation(ntiles).astype(np.int64)
+
+
+def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
+              width, height, include=None, dilation=DEFAULT_DILATION, guard=DEFAULT_GUARD, tile=TILE):
+    """Render N Gaussians into K cameras of equal size (see module docstring).
+
+    positions (N,3), quats (N,4) (w,x,y,z), scales (N,3) linear sigma, opacities (N,) linear,
+    sh (N,(d+1)^2,3) 3DGS basis (float32 or float64). Cameras: view_rot (K,3,3) and
+    view_t (K,3) world -> view (x right, y down, z depth), intr (K,4) = fx, fy, cx, cy in
+    pixels, nearfar (K,2), cam_pos (K,3) world camera centres (for the SH direction); K <= 63.
+    include: optional (N,) bool mask of the Gaussians to render. dilation: px^2 added to the 2D
+    covariance diagonal (3DGS: 0.3); guard: Jacobian clamp factor (3DGS: 1.3).
+
+    Returns (color (K,H,W,3) f32 premultiplied, transmittance (K,H,W) f32, expected depth
+    (K,H,W) f32 = sum(z alpha T) / (1 - T) (0 where nothing was blended), stats dict with counts:
+    culled_pass (pairs passing the cheap cull), entries (pairs projected), pairs (tile-entry
+    pairs), pairs_blended (processed before tiles terminated), pixel_evals).
+    """
+    width = int(width)
+    height = int(height)
+    tile = int(tile)
+    view_rot = np.ascontiguousarray(view_rot, np.float64).reshape(-1, 3, 3)
+    ncam = view_rot.shape[0]
+    if not 1 <= ncam <= 63:
+        raise ValueError(f"rasterize: 1..63 cameras per call, got {ncam}")
+    view_t = np.ascontiguousarray(view_t, np.float64).reshape(ncam, 3)
+    intr = np.ascontiguousarray(intr, np.float64).reshape(ncam, 4)
+    nearfar = np.ascontiguousarray(nearfar, np.float64).reshape(ncam, 2)
+    cam_pos = np.ascontiguousarray(cam_pos, np.float64).reshape(ncam, 3)
+    n = positions.shape[0]
+    if n >= 2**31:
+        raise ValueError("rasterize: at most 2**31 - 1 Gaussians")
+    if include is None:
+        include = np.zeros(0, np.bool_)
+    else:
+        include = np.ascontiguousarray(include, np.bool_)
+        if include.shape != (n,):
+            raise ValueError(f"rasterize: mask has shape {include.shape}, expected ({n},)")
+    dilation = float(dilation)
+    guard = float(guard)
+    tiles_x = (width + tile - 1) // tile
+    tiles_y = (height + tile - 1) // tile
+    # guard band for the Jacobian: the image's x/z (y/z) extent [c - h, c + h] widened to c +- guard h
+    lo_x, hi_x = -intr[:, 2] / intr[:, 0], (width - intr[:, 2]) / intr[:, 0]
+    lo_y, hi_y = -intr[:, 3] / intr[:, 1], (height - intr[:, 3]) / intr[:, 1]
+    cx_, hx_ = 0.5 * (lo_x + hi_x), 0.5 * (hi_x - lo_x)
+    cy_, hy_ = 0.5 * (lo_y + hi_y), 0.5 * (hi_y - lo_y)
+    clamp = np.ascontiguousarray(np.stack([cx_ - guard * hx_, cx_ + guard * hx_, cy_ - guard * hy_,
+                                           cy_ + guard * hy_], axis=1))
+    cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp], axis=1))
+    # large buffers are allocated by numpy (huge-page advice: far fewer page faults than numba's allocator)
+    vis = np.empty(n, np.int64)
+    _cull(positions, scales, opacities, include, cams, width, height, dilation, vis)
+    off = np.empty(n + 1, np.int64)
+    _visible_offsets(vis, off)
+    m = int(off[-1])
+    if m >= 2**31:
+        raise ValueError(f"rasterize: {m} (Gaussian, camera) pairs; at most 2**31 - 1 per call")
+    rec = _aligned_empty((m, _NF), np.float32)  # one 64-byte cache line per record
+    info = np.empty((m, 5), np.int32)
+    depth32 = np.empty(m, np.float32)
+    _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp, cam_pos,
+                   width, height, dilation, rec, info, depth32)
+    tile_start, tile_list = _bin_tiles(info, ncam, tiles_x, tiles_y, tile, 16)
+    ntiles = ncam * tiles_x * tiles_y
+    # positive float32 depths order like their bit patterns
+    color, trans, depth, processed, evals = _blend(rec, depth32.view(np.uint32), tile_start, tile_list,
+                                           _tile_order(ntiles), ncam, width, height, tiles_x, tiles_y, tile)
+    stats = {"culled_pass": int(off[-1]), "entries": int(np.count_nonzero(info[:, 0] >= 0)),
+             "pairs": int(tile_list.shape[0]), "pairs_blended": int(processed.sum()),
+             "pixel_evals": int(evals.sum())}
+    return color, trans, depth, stats

@@ -1,0 +1,366 @@
+"""CPU splat rasteriser: brute-force float64 reference, analytic footprints, blending order,
+early termination, masks, SH colour, cube faces, tile independence, PNG writer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from numba_kernels.cubemap_dirs import cube_face_directions
+from numba_kernels.rasterize import rasterize
+from numba_kernels.rasterize_reference import render_reference
+from usd_gs import sh3dgs
+from usd_gs.camera import Camera
+from usd_gs.gaussians import GaussianSet
+from usd_gs.render import cube_faces_cross, render, render_batch, render_cube_faces, to_srgb8, write_png
+
+IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _random_quats(rng, n):
+    q = rng.normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _gset(pos, scales, opac, dc, q=None, sh=None):
+    pos = np.atleast_2d(np.asarray(pos, np.float64))
+    n = len(pos)
+    if sh is None:
+        sh = np.zeros((n, 1, 3))
+        sh[:, 0] = (np.asarray(dc, np.float64) - 0.5) / sh3dgs.C0  # colour dc exactly
+    if q is None:
+        q = np.tile(IDENTITY_Q, (n, 1))
+    return GaussianSet(pos, q, np.broadcast_to(np.asarray(scales, np.float64), (n, 3)),
+                       np.broadcast_to(np.asarray(opac, np.float64), (n,)), sh)
+
+
+def _reference(g: GaussianSet, cam: Camera, mask=None):
+    vr, vt = cam.view_matrix()
+    return render_reference(g.positions, g.orientations, g.scales, g.opacities, g.sh, vr, vt, cam.intrinsics(),
+                            [cam.near, cam.far], cam.position, cam.width, cam.height, include=mask)
+
+
+def _psnr(a, b):
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return np.inf if mse == 0 else 10.0 * np.log10(1.0 / mse)
+
+
+CAM = Camera.look_at([0.3, 0.2, 4.0], [0.0, 0.0, 0.0], width=64, height=48, fov_y_deg=50.0)
+
+
+def _scene_random(seed=0, n=300):
+    """Random sizes/orientations/opacities/SH3, some behind the camera (z > 4) and some beside it."""
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(-1, 1, (n, 3)) * [2.0, 1.5, 3.0]
+    pos[:20, 2] = rng.uniform(4.5, 6.0, 20)  # behind the camera
+    return GaussianSet(pos, _random_quats(rng, n), np.exp(rng.uniform(np.log(0.01), np.log(0.3), (n, 3))),
+                       rng.uniform(0.05, 1.0, n), rng.normal(0, 0.5, (n, 16, 3)))
+
+
+def _scene_hard(seed=1):
+    """Needles (aspect up to 300), equal-depth overlaps, centres on tile borders, big splats."""
+    rng = np.random.default_rng(seed)
+    uv_border = []
+    # centres projected exactly onto tile borders (pixel coordinates 16, 32, 48 / 16, 32)
+    for u in (16.0, 32.0, 48.0):
+        for v in (16.0, 32.0):
+            uv_border.append((u, v))
+    uv_border = np.array(uv_border)
+    depth = 3.0
+    dirs_cam = np.stack([(uv_border[:, 0] - CAM.cx) / CAM.fx, -(uv_border[:, 1] - CAM.cy) / CAM.fy,
+                         -np.ones(len(uv_border))], axis=1)
+    border = CAM.position + depth * dirs_cam @ CAM.rotation.T
+    m = 120
+    needles = rng.uniform(-1, 1, (m, 3)) * [1.5, 1.2, 1.0]
+    s_needle = np.full((m, 3), 0.004)
+    s_needle[:, 0] = rng.uniform(0.3, 1.2, m)
+    same = rng.uniform(-1, 1, (40, 3)) * [1.0, 0.8, 0.0]  # all at world z = 0 -> nearly equal depth
+    same[20:, :] = same[:20, :]  # exact duplicates: equal depth, tie broken by index
+    pos = np.concatenate([border, needles, same, [[0.0, 0.0, 0.0]]])
+    n = len(pos)
+    scales = np.concatenate([np.full((len(border), 3), 0.08), s_needle, np.full((40, 3), 0.05), [[0.9, 0.9, 0.9]]])
+    sh = rng.normal(0, 0.6, (n, 4, 3))
+    return GaussianSet(pos, _random_quats(rng, n), scales, rng.uniform(0.3, 1.0, n), sh)
+
+
+@pytest.mark.parametrize("make", [_scene_random, _scene_hard])
+def test_matches_brute_force_reference(make):
+    g = make()
+    fast = render(g, CAM)
+    c, t, d = _reference(g, CAM)
+    assert _psnr(fast.rgb, c) >= 40.0
+    assert _psnr(fast.alpha, 1.0 - t) >= 40.0
+    # much tighter in fact (same image formation, float32 records vs float64): only a rare pixel
+    # where float32 rounding flips a threshold (1/255, 3 sigma) differs by more than 1e-4
+    err = np.abs(fast.rgb - c).max(axis=-1)
+    assert np.mean(err > 1e-4) < 0.002 and err.max() < 0.05
+    assert np.mean(np.abs(fast.alpha - (1.0 - t)) > 1e-4) < 0.002
+    cov = (1.0 - t) > 0.05
+    assert np.median(np.abs(fast.depth[cov] - d[cov] / (1.0 - t[cov]))) < 1e-5
+    assert 0.3 < fast.alpha.mean() < 1.0  # the scene is neither empty nor trivially opaque
+
+
+def test_cube_faces_match_reference():
+    # mirrored (det -1) face cameras inside a scene: every face against the brute-force reference
+    from usd_gs.camera import cube_face_cameras
+
+    g = _scene_random(seed=7, n=250)
+    centre = np.array([0.1, -0.2, 0.3])
+    rgb, alpha, depth = render_cube_faces(g, centre, 24)
+    for f, cam in enumerate(cube_face_cameras(centre, 24)):
+        c, t, d = _reference(g, cam)
+        assert _psnr(rgb[f], c) >= 40.0 and np.mean(np.abs(rgb[f] - c).max(-1) > 1e-4) < 0.005
+        assert _psnr(alpha[f], 1.0 - t) >= 40.0
+        assert alpha[f].mean() > 0.05
+
+
+def test_reference_with_mask_and_background():
+    g = _scene_random(seed=3)
+    mask = np.random.default_rng(0).uniform(size=g.count) < 0.5
+    fast = render(g, CAM, background=(0.2, 0.4, 0.9), mask=mask)
+    c, t, _ = _reference(g, CAM, mask=mask)
+    ref = c + t[..., None] * np.array([0.2, 0.4, 0.9])
+    assert _psnr(fast.rgb, ref) >= 40.0 and np.mean(np.abs(fast.rgb - ref) > 1e-4) < 0.002
+    # the mask is the subset
+    sub = render(g.subset(mask), CAM, background=(0.2, 0.4, 0.9))
+    np.testing.assert_array_equal(sub.alpha, fast.alpha)
+    np.testing.assert_allclose(sub.rgb, fast.rgb, atol=1e-6)
+
+
+def _facing_camera(size=33):
+    # principal point = centre of pixel 16 for an odd size
+    return Camera(np.zeros(3), np.eye(3), 40.0, 40.0, size / 2, size / 2, size, size, near=0.05, far=100.0)
+
+
+def test_single_isotropic_gaussian_analytic_footprint():
+    cam = _facing_camera()
+    z, sigma2d, op, dc = 2.0, 4.0, 0.8, np.array([0.2, 0.5, 0.9])
+    # (f s / z)^2 + 0.3 = sigma2d^2 so the dilated footprint has sigma exactly 4 px
+    s = np.sqrt(sigma2d**2 - 0.3) * z / cam.fx
+    res = render(_gset([[0.0, 0.0, -z]], s, op, dc), cam)
+    assert res.alpha[16, 16] == pytest.approx(op, abs=1e-6)
+    assert res.alpha[16, 20] == pytest.approx(op * np.exp(-0.5), abs=1e-6)  # 1 sigma right
+    assert res.alpha[12, 16] == pytest.approx(op * np.exp(-0.5), abs=1e-6)  # 1 sigma up
+    assert res.alpha[19, 20] == pytest.approx(op * np.exp(-0.5 * 25 / 16), abs=1e-6)  # (4, 3) px: 1.25 sigma
+    assert res.alpha[16, 16 + 12] == pytest.approx(op * np.exp(-4.5), abs=1e-6)  # 3 sigma: still inside
+    assert res.alpha[16, 16 + 13] == 0.0 and res.alpha[0, 0] == 0.0  # outside the 3-sigma support
+    hit = res.alpha > 0
+    np.testing.assert_allclose(res.depth[hit], z, rtol=1e-6)
+    assert np.all(res.depth[~hit] == 0)
+    # colour = 0.5 + C0 * f_dc (premultiplied by alpha over black)
+    np.testing.assert_allclose(res.rgb[hit] / res.alpha[hit, None], np.broadcast_to(dc, (hit.sum(), 3)), atol=1e-5)
+    # over a background: c a + (1 - a) b
+    bg = np.array([1.0, 0.0, 0.25])
+    res_bg = render(_gset([[0.0, 0.0, -z]], s, op, dc), cam, background=bg)
+    np.testing.assert_allclose(res_bg.rgb[16, 16], dc * op + (1 - op) * bg, atol=1e-6)
+
+
+def test_alpha_clamp_threshold_and_no_dilation():
+    cam = _facing_camera()
+    # opacity 1 is clamped to alpha 0.99
+    res = render(_gset([[0.0, 0.0, -2.0]], 0.1, 1.0, [1, 1, 1]), cam)
+    assert res.alpha[16, 16] == pytest.approx(0.99, abs=1e-7)
+    # opacity below 1/255 draws nothing
+    res = render(_gset([[0.0, 0.0, -2.0]], 0.1, 0.9 / 255, [1, 1, 1]), cam)
+    assert res.alpha.max() == 0.0
+    # dilation is a parameter: without it sigma2d = f s / z exactly
+    res = render(_gset([[0.0, 0.0, -2.0]], 4.0 * 2.0 / 40.0, 0.5, [1, 1, 1]), cam, dilation=0.0)
+    assert res.alpha[16, 20] == pytest.approx(0.5 * np.exp(-0.5), abs=1e-6)
+
+
+def test_front_to_back_order_tiebreak_and_early_termination():
+    cam = _facing_camera()
+    s = 0.2
+    red, green = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
+    # nearer green behind farther red in index order: depth decides
+    g = _gset([[0, 0, -3.0], [0, 0, -2.0]], s, 0.7, [red, green])
+    c = render(g, cam).rgb[16, 16]
+    np.testing.assert_allclose(c, 0.7 * np.array(green) + 0.3 * 0.7 * np.array(red), atol=1e-6)
+    # equal depth: the lower index is in front
+    g = _gset([[0, 0, -2.0], [0, 0, -2.0]], s, 0.7, [red, green])
+    np.testing.assert_allclose(render(g, cam).rgb[16, 16], [0.7, 0.3 * 0.7, 0.0], atol=1e-6)
+    g = _gset([[0, 0, -2.0], [0, 0, -2.0]], s, 0.7, [green, red])
+    np.testing.assert_allclose(render(g, cam).rgb[16, 16], [0.3 * 0.7, 0.7, 0.0], atol=1e-6)
+    # early termination: T = 0.05, 0.0025, 1.25e-4, then 6.25e-6 < 1e-4 stops the pixel;
+    # the 4th and later (blue) splats must not contribute
+    cols = [red, red, red, [0, 0, 1], [0, 0, 1]]
+    g = _gset([[0, 0, -2.0 - 0.1 * k] for k in range(5)], s, 0.95, cols)
+    res = render(g, cam)
+    assert res.alpha[16, 16] == pytest.approx(1 - 0.05**3, abs=1e-7)
+    np.testing.assert_allclose(res.rgb[16, 16], [1 - 0.05**3, 0, 0], atol=1e-6)
+    expect_depth = (0.95 * 2.0 + 0.05 * 0.95 * 2.1 + 0.05**2 * 0.95 * 2.2) / (1 - 0.05**3)
+    assert res.depth[16, 16] == pytest.approx(expect_depth, rel=1e-6)
+
+
+def test_behind_camera_and_near_far_culling():
+    cam = _facing_camera()
+    g = _gset([[0, 0, 2.0], [0, 0, -0.04], [0, 0, -200.0]], 0.5, 0.9, [1, 1, 1])
+    assert render(g, cam).alpha.max() == 0.0
+
+
+def test_view_dependent_sh_colour_and_clamp():
+    rng = np.random.default_rng(5)
+    sh = rng.normal(0, 0.8, (1, 16, 3))
+    g = _gset([[0.3, -0.2, 0.1]], 0.1, 0.9, None, sh=sh)
+    for eye in ([0.0, 0.0, 3.0], [2.5, 1.0, -1.5], [-1.0, -2.5, 0.5]):
+        cam = Camera.look_at(eye, g.positions[0], width=33, height=33, fov_y_deg=40)
+        res = render(g, cam)
+        d = g.positions[0].astype(np.float64) - np.asarray(eye)
+        expect = np.maximum(0.0, sh3dgs.eval_color(sh, d / np.linalg.norm(d)))[0]
+        np.testing.assert_allclose(res.rgb[16, 16] / res.alpha[16, 16], expect, atol=1e-5)
+    neg = _gset([[0.0, 0.0, -2.0]], 0.1, 0.9, [-0.5, 0.25, 2.0])
+    res = render(neg, _facing_camera())
+    np.testing.assert_allclose(res.rgb[16, 16] / res.alpha[16, 16], [0.0, 0.25, 2.0], atol=1e-5)
+
+
+def _raw(g, cams, tile=16, include=None):
+    vm = [c.view_matrix() for c in cams]
+    return rasterize(g.positions, g.orientations, g.scales, g.opacities, g.sh, np.stack([v[0] for v in vm]),
+                     np.stack([v[1] for v in vm]), np.stack([c.intrinsics() for c in cams]),
+                     np.array([[c.near, c.far] for c in cams]), np.stack([c.position for c in cams]),
+                     cams[0].width, cams[0].height, include=include, tile=tile)
+
+
+def test_tile_size_and_batching_do_not_change_the_image():
+    g = _scene_hard()
+    a = _raw(g, [CAM], tile=16)
+    b = _raw(g, [CAM], tile=8)
+    c = _raw(g, [CAM], tile=64)
+    for x, y in ((a, b), (a, c)):
+        for k in range(3):
+            np.testing.assert_array_equal(x[k], y[k])
+    cam2 = Camera.look_at([-2.0, 1.0, 3.0], [0, 0, 0], width=64, height=48)
+    both = _raw(g, [CAM, cam2])
+    single = _raw(g, [cam2])
+    for k in range(3):
+        np.testing.assert_array_equal(both[k][0], a[k][0])
+        np.testing.assert_array_equal(both[k][1], single[k][0])
+
+
+def test_deterministic_across_thread_counts():
+    import numba
+
+    g = _scene_random(seed=11)
+    base = render(g, CAM)
+    n = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = render(g, CAM)
+    finally:
+        numba.set_num_threads(n)
+    for a, b in ((base.rgb, one.rgb), (base.alpha, one.alpha), (base.depth, one.depth)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_render_batch_equals_single_renders():
+    from usd_gs.errors import UserError
+
+    g = _scene_random(seed=12)
+    cam2 = Camera.look_at([2.0, -1.0, 3.0], [0, 0, 0], width=64, height=48)
+    rgb, alpha, depth = render_batch(g, [CAM, cam2], background=(0.1, 0.2, 0.3))
+    for k, cam in enumerate((CAM, cam2)):
+        one = render(g, cam, background=(0.1, 0.2, 0.3))
+        np.testing.assert_array_equal(rgb[k], one.rgb)
+        np.testing.assert_array_equal(alpha[k], one.alpha)
+        np.testing.assert_array_equal(depth[k], one.depth)
+    with pytest.raises(UserError, match="same image size"):
+        render_batch(g, [CAM, _facing_camera()])
+
+
+def test_degenerate_inputs_stay_finite():
+    g = GaussianSet(np.array([[0, 0, -2.0], [0.1, 0, -2.0], [0, 0.1, -2.0]]),
+                    np.array([[0, 0, 0, 0], [1, 0, 0, 0], [0.5, 0.5, 0.5, 0.5]]),
+                    np.array([[1e-12, 1e-12, 1e-12], [1e6, 1e-6, 1e-6], [0.1, 0.1, 0.1]]),
+                    np.array([1.0, 0.5, 0.5]), np.zeros((3, 1, 3)))
+    for dil in (0.3, 0.0):
+        res = render(g, _facing_camera(), dilation=dil)
+        for a in (res.rgb, res.alpha, res.depth):
+            assert np.all(np.isfinite(a))
+    # non-finite values are skipped, the rest still renders
+    bad = GaussianSet(np.array([[np.nan, 0, -2.0], [np.inf, 0, -2.0], [0, 0, -2.0], [0, 0, -2.0], [0, 0, -2.0],
+                                [0, 0, -2.0]]),
+                      np.array([[1, 0, 0, 0]] * 5 + [[np.nan, 0, 0, 0]]),
+                      np.array([[0.1] * 3, [0.1] * 3, [np.nan] * 3, [0.1] * 3, [0.1] * 3, [0.1] * 3]),
+                      np.array([0.5, 0.5, 0.5, np.nan, 0.5, 0.5]), np.zeros((6, 1, 3)))
+    bad.sh[4, 0, 0] = np.nan
+    res = render(bad, _facing_camera())
+    for a in (res.rgb, res.alpha, res.depth):
+        assert np.all(np.isfinite(a))
+    # the NaN-colour splat (red channel -> 0) and the NaN-quaternion splat (identity) are drawn
+    assert res.alpha[16, 16] == pytest.approx(1 - 0.5 * 0.5, abs=1e-6)
+    # a splat at the camera centre (depth 0) and an empty set
+    g0 = _gset([[0.0, 0.0, 0.0]], 0.1, 0.9, [1, 1, 1])
+    assert render(g0, _facing_camera()).alpha.max() == 0.0
+    empty = GaussianSet.empty()
+    res = render(empty, _facing_camera())
+    assert res.alpha.max() == 0.0 and res.rgb.shape == (33, 33, 3)
+
+
+def test_bad_mask_raises():
+    from usd_gs.errors import UserError
+
+    g = _scene_random()
+    with pytest.raises(UserError, match="mask"):
+        render(g, CAM, mask=np.ones(3, bool))
+
+
+def test_cube_faces_look_along_cubemap_directions():
+    size = 16
+    dirs = cube_face_directions(size)
+    centre = np.array([0.2, -0.3, 0.5])
+    rng = np.random.default_rng(2)
+    texels = [(f, int(rng.integers(1, size - 1)), int(rng.integers(1, size - 1))) for f in range(6)]
+    texels += [(0, 2, 13), (2, 1, 14), (5, 14, 3)]
+    for f, i, j in texels:
+        d = dirs[f, i, j]
+        g = _gset([centre + 3.0 * d], 0.002, 0.9, [0.9, 0.4, 0.1])
+        rgb, alpha, depth = render_cube_faces(g, centre, size)
+        assert rgb.shape == (6, size, size, 3) and alpha.shape == depth.shape == (6, size, size)
+        hit = np.unravel_index(np.argmax(alpha), alpha.shape)
+        assert hit == (f, i, j)
+        assert alpha[f, i, j] == pytest.approx(0.9, abs=1e-4)  # the texel centre sees the splat centre
+        assert depth[f, i, j] == pytest.approx(3.0 * abs(d[f // 2]), rel=1e-5)  # depth along the face axis
+
+
+def test_cube_faces_are_seamless_for_a_uniform_shell():
+    # a dense shell of splats around the probe covers every texel of every face
+    rng = np.random.default_rng(4)
+    v = rng.normal(size=(20000, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    g = _gset(2.0 * v, 0.05, 0.8, [0.3, 0.6, 0.9])
+    rgb, alpha, _ = render_cube_faces(g, np.zeros(3), 8)
+    assert alpha.min() > 0.999
+    np.testing.assert_allclose(rgb, np.broadcast_to([0.3, 0.6, 0.9], rgb.shape), atol=2e-3)
+    cross = cube_faces_cross(rgb)
+    assert cross.shape == (24, 32, 3)
+
+
+def _read_png(path):
+    """Decoded PNG as (H, W, C) uint8, read independently of the writer with Pillow."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        assert im.format == "PNG"
+        a = np.asarray(im)
+    return a[..., None] if a.ndim == 2 else a
+
+
+def test_png_writer(tmp_path):
+    img = np.zeros((3, 5, 3), np.float32)
+    img[0, 0] = [1.0, 0.5, 0.0]
+    img[2, 4] = [0.0031308, 0.2, 2.0]
+    out = _read_png(write_png(tmp_path / "a.png", img, srgb=True))
+    assert out.shape == (3, 5, 3)
+    # sRGB: 0.5 -> 1.055 * 0.5^(1/2.4) - 0.055 = 0.7354 -> 188; 0.2 -> 0.4845 -> 124
+    np.testing.assert_array_equal(out[0, 0], [255, 188, 0])
+    np.testing.assert_array_equal(out[2, 4], [round(255 * 12.92 * 0.0031308), 124, 255])
+    grey = _read_png(write_png(tmp_path / "g.png", np.array([[0.0, 1.0]]), srgb=True))
+    np.testing.assert_array_equal(grey[..., 0], [[0, 255]])
+    # default: display-referred values, scaled as they are
+    plain = _read_png(write_png(tmp_path / "p.png", img))
+    np.testing.assert_array_equal(plain[0, 0], [255, 128, 0])
+    np.testing.assert_array_equal(plain[2, 4], [1, 51, 255])
+    rgba = np.zeros((2, 2, 4), np.uint8)
+    rgba[1, 1] = [1, 2, 3, 4]
+    np.testing.assert_array_equal(_read_png(write_png(tmp_path / "c.png", rgba)), rgba)
+    assert to_srgb8(np.array([np.nan, -1.0, 0.5]))[1] == 0
