@@ -160,7 +160,7 @@ class DemoOptions:
 
 
 QUICK = DemoOptions(frames=8, avatar_gaussians=5000, room_density=60.0, biker_gaussians=8000, guitar_gaussians=5000,
-                    room_brick_size=4000)
+                    room_brick_size=1000)
 """``--quick``: a tiny demo for tests (about 30k Gaussians in all, 8 frames)."""
 
 

@@ -1,0 +1,131 @@
+"""``usdgs process``: the main job."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from .errors import UserError
+
+
+def _load_config(path: str) -> dict:
+    """Options from a JSON file: keys are the long option names with '_' (e.g. direct_fraction,
+    atlas_size); command-line options given explicitly win."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise UserError(f"--config {path}: no such file") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(data, dict):
+        raise UserError(f"--config {path}: must hold a JSON object")
+    return data
+
+
+DGSM_KEYS = ("atlas_size", "K", "k_sigma", "roi_radius", "kappa", "mapping", "sampling", "n_samples", "seed",
+             "use_roi", "use_tile_culling", "refine_contrast")
+PROCESS_KEYS = ("frames", "lights", "lights_per_frame", "direct_fraction", "probe_size", "probe_degree",
+                "relight_q", "relight_gamma", "relight_t_max", "contact_bias", "roi", "emitter_radius")
+
+
+def build_options(args):
+    from .pipeline import ProcessOptions
+    from .shadows import DGSMConfig
+
+    cfg = _load_config(args.config) if args.config else {}
+    unknown = set(cfg) - set(DGSM_KEYS) - set(PROCESS_KEYS)
+    if unknown:
+        raise UserError(f"--config {args.config}: unknown option(s) {', '.join(sorted(unknown))}")
+    dgsm = DGSMConfig(**{k: cfg[k] for k in DGSM_KEYS if k in cfg})
+    for k in ("atlas_size", "n_samples", "sampling", "seed"):
+        v = getattr(args, k, None)
+        if v is not None:
+            setattr(dgsm, k, v)
+    if args.no_roi:
+        dgsm.use_roi = False
+    if args.no_tile_culling:
+        dgsm.use_tile_culling = False
+    kw = {k: cfg[k] for k in PROCESS_KEYS if k in cfg}
+    for k in ("frames", "lights", "direct_fraction"):
+        v = getattr(args, k)
+        if v is not None:
+            kw[k] = v
+    if args.lights_per_frame:
+        kw["lights_per_frame"] = True
+    return ProcessOptions(scene_paths=tuple(args.scene or ()), avatar_paths=tuple(args.avatar or ()),
+                          object_paths=tuple(args.object or ()), dgsm=dgsm, **kw)
+
+
+def cmd_process(args) -> int:
+    from .pipeline import ShotProcessor, default_output_path
+    from .roles import role_table
+    from .stage_open import check_usd_output_path
+
+    out = args.output or default_output_path(args.stage)
+    check_usd_output_path(out)
+    opts = build_options(args)
+    quiet = args.quiet or args.json
+    log = (lambda *a, **k: None) if quiet else print
+    proc = ShotProcessor(args.stage, out, opts, log=log)
+    summary = proc.run(progress=not quiet and sys.stderr.isatty() or args.progress)
+    if args.json:
+        json.dump(summary.as_dict(), sys.stdout, indent=2)
+        print()
+        return 0
+    if args.quiet:
+        return 0
+    d = summary.as_dict()
+    print(role_table(summary.roles, proc.counts))
+    print(f"lights ({len(summary.lights)}):")
+    for lt in summary.lights:
+        where = (f"at ({lt.position[0]:.2f}, {lt.position[1]:.2f}, {lt.position[2]:.2f})" if lt.kind == "point"
+                 else f"along ({lt.direction[0]:.2f}, {lt.direction[1]:.2f}, {lt.direction[2]:.2f})")
+        score = "" if lt.score is None else f", score {lt.score:.3g}"
+        print(f"  {lt.name}: {lt.kind} {where}, intensity {lt.intensity:.3g}{score} [{lt.source}]")
+    for w in summary.warnings:
+        print(f"warning: {w}")
+    print("timings (s): " + ", ".join(f"{k} {v:.2f}" for k, v in d["timings_s"].items()))
+    fps = d["frames_per_second"]
+    print(f"{len(summary.frames)} frame(s), {d['seconds_per_frame']:.3f} s/frame"
+          + (f" ({fps:.2f} frames/s)" if fps else ""))
+    print(f"affected frames per prim: {summary.affected or 'none'}")
+    print(f"wrote {summary.output} ({summary.output_bytes / 1e6:.1f} MB with {summary.probe_files} probe textures)")
+    return 0
+
+
+def register_process(sub, formatter):
+    p = sub.add_parser(
+        "process", formatter_class=formatter, help="shadows and relighting for every frame of a shot",
+        description="Estimate lights (or use the stage's UsdLux lights), build Deep Gaussian Shadow Maps from the "
+                    "avatars and objects, attenuate the scene's colours in their shadows, fit an SH environment "
+                    "probe at each avatar and relight it. Results go to a new layered stage that sublayers the "
+                    "input (the input is never written): primvars:usdgs:transmittance, shadowed and relit "
+                    "radiance:sphericalHarmonicsCoefficients, primvars:usdgs:lightScale, /UsdGs/Lights and "
+                    "/UsdGs/Probes, plus lat-long EXR probe textures in <output stem>_probes/.")
+    p.add_argument("stage", help="input USD stage")
+    p.add_argument("-o", "--output", help="output stage (default: <stem>.lit.usdc beside the input)")
+    p.add_argument("--frames", help="frames: A-B, A:B:STEP, N, or a comma list (default: the stage's range)")
+    p.add_argument("--lights", help="'auto' (stage lights, else estimate 2), 'stage' (UsdLux lights only) or N "
+                                    "(estimate N lights) (default: auto)")
+    p.add_argument("--lights-per-frame", action="store_true", help="re-estimate lights at every frame")
+    p.add_argument("--avatar", action="append", metavar="PATH", help="treat this prim as an avatar (repeatable)")
+    p.add_argument("--object", action="append", metavar="PATH", help="treat this prim as an inserted object")
+    p.add_argument("--scene", action="append", metavar="PATH", help="treat this prim as scene")
+    p.add_argument("--direct-fraction", type=float,
+                   help="share of a receiver's colour that is direct light and can be shadowed (default 1)")
+    p.add_argument("--atlas-size", type=int, help="DGSM octahedral atlas side in pixels (default 512)")
+    p.add_argument("--sampling", choices=("center", "stencil7", "mc"), help="receiver footprint sampling (default mc)")
+    p.add_argument("--n-samples", type=int, help="Monte Carlo footprint samples per receiver (default 8)")
+    p.add_argument("--seed", type=int, help="seed of the footprint sampling (default 0)")
+    p.add_argument("--no-roi", action="store_true", help="disable the receiver ROI (slow; for ablations)")
+    p.add_argument("--no-tile-culling", action="store_true", help="disable light-space tile culling (slow)")
+    p.add_argument("--config", help="JSON file with options (names as above with '_')")
+    p.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    g.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    p.set_defaults(handler=cmd_process)
+
+
+REGISTRARS = [register_process]

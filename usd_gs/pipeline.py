@@ -1,0 +1,446 @@
+"""The main job (``usdgs process``): shadows, probes and relighting for every frame of a shot.
+
+Steps (paper sections in brackets):
+
+1. Open the input, list the Gaussian prims and resolve their roles (``usd_gs.roles``).
+   Static prims are read once, in world space; dynamic ones at every frame.
+2. Lights: the stage's UsdLux lights, or ``k`` lights estimated once per shot from the
+   scene Gaussians at the avatars' mean position over the frame range [3.1]
+   (``--lights-per-frame`` re-estimates at every frame). Estimated lights are written as
+   ``SphereLight`` prims under ``/UsdGs/Lights``.
+3. Per frame and light: one DGSM per dynamic caster prim, sampled on the scene receivers
+   in its ROI and on the other dynamic prims; the static scene's DGSM sampled on the
+   dynamic prims [3.2, 3.3] (``usd_gs.shot_shadows``). Lights are combined by their share
+   of the direct light (``usd_gs.shading``).
+4. Per relit prim (avatars and objects with ``usdgs:relight``): six cube faces rendered at
+   its alpha-weighted centroid from everything else, an SH probe fitted [3.4], normals
+   (estimated once, then carried by each Gaussian's rotation) and SH transfer [3.5].
+5. Results go to the layered output stage (``usd_gs.output_layer``) through
+   ``usd_gs.output_author``; probe textures (lat-long OpenEXR) beside the output. All of
+   it is written atomically at the end: an interrupted run leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UserError
+from .light_prims import ShotLight, read_stage_lights, write_estimated_lights
+from .shadows import DGSMConfig
+
+
+@dataclass
+class ProcessOptions:
+    """Options of ``usdgs process`` (see ``usdgs process --help`` for each)."""
+
+    frames: str | None = None
+    lights: str = "auto"  # 'auto' | 'stage' | a number of lights to estimate
+    lights_per_frame: bool = False
+    scene_paths: tuple[str, ...] = ()
+    avatar_paths: tuple[str, ...] = ()
+    object_paths: tuple[str, ...] = ()
+    direct_fraction: float = 1.0
+    default_light_count: int = 2
+    dgsm: DGSMConfig = field(default_factory=DGSMConfig)
+    contact_bias: float = 0.03
+    emitter_radius: float = 0.25
+    roi: str = "cone"  # receiver ROI per caster: 'cone' | 'box' (the paper's) | 'all'
+    probe_size: int = 32
+    probe_degree: int = 3
+    probe_texture: tuple[int, int] = (32, 64)
+    relight_q: float = 1.0
+    relight_gamma: float = 1.0
+    relight_t_max: float = 8.0
+
+    def check(self) -> ProcessOptions:
+        if not 0.0 <= self.direct_fraction <= 1.0:
+            raise UserError(f"--direct-fraction must be in [0, 1], got {self.direct_fraction}")
+        if self.roi not in ("cone", "box", "all"):
+            raise UserError(f"roi must be 'cone', 'box' or 'all', got '{self.roi}'")
+        if self.probe_size < 4 or self.probe_degree < 0 or self.probe_degree > 3:
+            raise UserError("probe size must be >= 4 and probe degree 0..3")
+        if self.lights not in ("auto", "stage"):
+            try:
+                k = int(self.lights)
+            except ValueError:
+                raise UserError(f"--lights must be 'auto', 'stage' or a number, got '{self.lights}'") from None
+            if not 1 <= k <= 16:
+                raise UserError(f"--lights {k}: estimate between 1 and 16 lights")
+        self.dgsm.validate()
+        return self
+
+
+@dataclass
+class ProcessSummary:
+    """What a run did: roles, lights, frames, per-stage seconds, output files and sizes."""
+
+    input: str
+    output: str
+    roles: list
+    lights: list
+    frames: list
+    timings: dict
+    warnings: list
+    output_bytes: int = 0
+    probe_files: int = 0
+    samples_written: int = 0
+    affected: dict = field(default_factory=dict)
+
+    @property
+    def seconds(self) -> float:
+        """Wall seconds of the whole run."""
+        return float(self.timings.get("total", 0.0))
+
+    def as_dict(self) -> dict:
+        frame_time = self.timings.get("frames", 0.0)
+        return {
+            "input": self.input, "output": self.output,
+            "roles": [{"path": r.path, "role": r.role, "from": r.source, "dynamic": r.dynamic,
+                       "casts_shadows": r.casts_shadows, "receives_shadows": r.receives_shadows,
+                       "relight": r.relight} for r in self.roles],
+            "lights": [{"name": lt.name, "kind": lt.kind, "position": [float(x) for x in lt.position],
+                        "direction": [float(x) for x in lt.direction], "color": [float(x) for x in lt.color],
+                        "intensity": float(lt.intensity), "score": lt.score, "source": lt.source}
+                       for lt in self.lights],
+            "frames": {"count": len(self.frames), "first": self.frames[0] if self.frames else None,
+                       "last": self.frames[-1] if self.frames else None},
+            "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
+            "seconds_per_frame": round(frame_time / max(len(self.frames), 1), 4),
+            "frames_per_second": round(len(self.frames) / frame_time, 3) if frame_time > 0 else None,
+            "output_bytes": self.output_bytes, "probe_files": self.probe_files,
+            "samples_written": self.samples_written, "affected_frames": self.affected,
+            "warnings": self.warnings,
+        }
+
+
+class _Clock:
+    def __init__(self):
+        self.t: dict[str, float] = {}
+
+    def add(self, key: str, since: float) -> float:
+        now = time.perf_counter()
+        self.t[key] = self.t.get(key, 0.0) + (now - since)
+        return now
+
+
+def default_output_path(input_path: str) -> str:
+    """``<stem>.lit.usdc`` beside the input."""
+    p = Path(input_path)
+    return str(p.with_name(p.stem + ".lit.usdc"))
+
+
+def _alpha_centroid(g) -> np.ndarray:
+    w = g.opacities.astype(np.float64)
+    p = g.positions.astype(np.float64)
+    return (w @ p) / w.sum() if w.sum() > 0 else p.mean(axis=0)
+
+
+def _safe_name(path: str) -> str:
+    return path.rstrip("/").rsplit("/", 1)[-1]
+
+
+class ShotProcessor:
+    """Runs the steps of the module docstring for one input stage."""
+
+    def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions, log=print):
+        self.input_path = str(input_path)
+        self.output_path = str(output_path or default_output_path(input_path))
+        self.opts = options.check()
+        self.log = log
+        self.clock = _Clock()
+        self.warnings: list[str] = []
+
+    # ------------------------------------------------------------------ set-up
+    def _open(self):
+        from pxr import Usd, UsdGeom
+
+        from .frames import parse_frames
+        from .roles import resolve_roles
+        from .stage_open import open_stage
+        from .usd_io import describe_gaussian_prim, find_gaussian_prims
+
+        t0 = time.perf_counter()
+        self.stage = open_stage(self.input_path)
+        prims = find_gaussian_prims(self.stage)
+        if not prims:
+            raise UserError(f"{self.input_path}: no ParticleField3DGaussianSplat prims to process")
+        self.prims = {str(p.GetPath()): p for p in prims}
+        infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime()) for p in prims]
+        self.counts = {i.path: i.count for i in infos}
+        self.roles, warnings = resolve_roles(infos, self.opts.scene_paths, self.opts.avatar_paths,
+                                             self.opts.object_paths)
+        self.warnings += warnings
+        self.frames = parse_frames(self.opts.frames, self.stage.GetStartTimeCode(), self.stage.GetEndTimeCode())
+        up = UsdGeom.GetStageUpAxis(self.stage)
+        self.opts.dgsm.up_axis = "Z" if up == UsdGeom.Tokens.z else "Y"
+        self.clock.add("open", t0)
+
+    def _read(self, path: str, frame: float):
+        from pxr import Usd
+
+        from .usd_io import read_gaussian_prim
+
+        return read_gaussian_prim(self.prims[path], Usd.TimeCode(frame))
+
+    def _read_static(self):
+        from pxr import Usd
+
+        from .usd_io import read_gaussian_prim
+
+        t0 = time.perf_counter()
+        self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime())
+                       for r in self.roles if not r.dynamic}
+        self.clock.add("read", t0)
+
+    # ------------------------------------------------------------------ lights
+    def _estimate(self, frames: list[float], k: int) -> list[ShotLight]:
+        from .gaussians import GaussianSet
+        from .lights import estimate_lights
+
+        scene = [g for r in self.roles if r.role == "scene" and not r.dynamic for g in [self.static[r.path]]]
+        if not scene:
+            self.warnings.append("no static scene prim: no lights can be estimated")
+            return []
+        movers = [r.path for r in self.roles if r.role == "avatar"] or [r.path for r in self.roles if r.dynamic]
+        picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
+        cents = [_alpha_centroid(self._read(p, f)) for p in movers for f in picks]
+        if not cents:
+            cents = [_alpha_centroid(GaussianSet.concatenate(scene))]
+        centroid = np.mean(cents, axis=0)
+        est = estimate_lights(GaussianSet.concatenate(scene, label="scene"), centroid, k=k,
+                              meters_per_unit=self.mpu)
+        return [ShotLight(f"Light_{i}", "point", np.asarray(e.position, np.float64), color=np.asarray(e.color),
+                          intensity=float(e.intensity), score=float(e.score)) for i, e in enumerate(est)]
+
+    def _lights(self, frame: float) -> list[ShotLight]:
+        from pxr import Usd
+
+        t0 = time.perf_counter()
+        mode = self.opts.lights
+        if mode in ("auto", "stage"):
+            lights, warns = read_stage_lights(self.stage, Usd.TimeCode(frame))
+            for w in warns:
+                if w not in self.warnings:
+                    self.warnings.append(w)
+            if lights or mode == "stage":
+                if not lights:
+                    raise UserError(f"{self.input_path}: --lights stage but the stage has no usable UsdLux light")
+                self.clock.add("lights", t0)
+                return lights
+            k = self.opts.default_light_count
+        else:
+            k = int(mode)
+        if self.opts.lights_per_frame:
+            lights = self._estimate([frame], k)
+        else:
+            if self._shot_lights is None:
+                self._shot_lights = self._estimate(self.frames, k)
+            lights = self._shot_lights
+        self.clock.add("lights", t0)
+        return lights
+
+    # ------------------------------------------------------------------ per frame
+    def _frame(self, frame: float, author, probe_dir: Path):
+        from .gaussians import GaussianSet
+        from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
+        from .shadows import prepare_occluders
+        from .shot_shadows import Receivers, caster_transmittance, occluders_toward
+
+        clk = self.clock
+        t = time.perf_counter()
+        dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.dynamic}
+        sets = {**self.static, **dyn}
+        t = clk.add("read", t)
+        lights = self._lights(frame)
+        self.lights_used = lights
+        t = time.perf_counter()
+
+        casters_dyn = [r.path for r in self.roles if r.dynamic and r.casts_shadows and r.role != "scene"]
+        static_casters = [r.path for r in self.roles if not r.dynamic and r.casts_shadows]
+        receivers = [r.path for r in self.roles if r.receives_shadows]
+        dyn_receivers = [p for p in receivers if p in dyn]
+        recv = Receivers.build([(p, sets[p]) for p in receivers])
+        own = {p: Receivers(sets[p], {p: (0, sets[p].count)}) for p in dyn_receivers}
+        if self._scene_block is None and static_casters:
+            self._scene_block = GaussianSet.concatenate([self.static[p] for p in static_casters],
+                                                        label="scene casters")
+        scene_block = self._scene_block if dyn_receivers else None
+        t = clk.add("prepare", t)
+
+        per_light = []
+        cfg = self.opts.dgsm
+        packed = {q: prepare_occluders(sets[q], cfg) for q in casters_dyn} if lights else {}
+        for light in lights:
+            tl = np.ones(recv.gaussians.count)
+            for q in casters_dyn:
+                tq, _ = caster_transmittance(sets[q], recv, light, cfg, exclude=q, roi=self.opts.roi,
+                                             prepared=packed[q])
+                tl *= tq
+            if scene_block is not None and scene_block.count:
+                block = self._scene_casters_for(scene_block, light)
+                for p in dyn_receivers:
+                    near = occluders_toward(block, sets[p].positions, light, cfg.k_sigma)
+                    if near.size == 0:
+                        continue
+                    ts, _ = caster_transmittance(block.subset(near), own[p], light, self._centre_cfg, roi="cone",
+                                                 bias=self.opts.contact_bias / self.mpu)
+                    a, b = recv.ranges[p]
+                    tl[a:b] *= ts
+            per_light.append(tl)
+        shares = light_shares(lights, recv.gaussians.positions)
+        t_all = combine_lights(per_light, shares)
+        t = clk.add("shadows", t)
+
+        # relighting (probe + transfer) for avatars and objects
+        relit = {}
+        everything = None
+        for r in self.roles:
+            if not (r.dynamic and r.relight and r.role in ("avatar", "object")):
+                continue
+            if everything is None:
+                order = list(sets)
+                everything = GaussianSet.concatenate([sets[p] for p in order], label="shot")
+                offsets = np.cumsum([0] + [sets[p].count for p in order])
+                spans = {p: (offsets[i], offsets[i + 1]) for i, p in enumerate(order)}
+            relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author, probe_dir)
+        t = clk.add("relight", t)
+
+        # authoring
+        affected = []
+        for p in receivers:
+            a, b = recv.ranges[p]
+            tp = t_all[a:b]
+            base_sh = relit[p][0] if p in relit else sets[p].sh
+            sh_out = scale_sh(base_sh, attenuation_factor(tp, self.opts.direct_fraction)) if (tp < 1).any() else base_sh
+            if author.receiver(p, frame, tp, sh_out, sets[p].sh) or p in relit:
+                affected.append(p)
+        for p, (sh_relit, scale) in relit.items():
+            author.light_scale(p, frame, scale)
+            if p not in receivers:
+                author.receiver(p, frame, np.ones(sets[p].count, np.float32), sh_relit, sets[p].sh)
+        clk.add("write", t)
+        for p in affected:
+            self.affected[p] = self.affected.get(p, 0) + 1
+
+    def _scene_casters_for(self, scene_block, light):
+        """Static casters for ``light``, computed once per shot and light.
+
+        Scene Gaussians within ``emitter_radius`` of a point light are the light's own
+        emitter (an estimated light sits inside the bright cluster it was found in) and do
+        not cast shadows for it. Per frame only the casters between the light and the
+        receivers are used (``shot_shadows.occluders_toward``).
+        """
+        key = (light.kind, tuple(np.round(light.position, 6)), tuple(np.round(light.direction, 6)))
+        if key not in self._scene_packs:
+            block = scene_block
+            if light.kind == "point":
+                r = max(self.opts.emitter_radius / self.mpu, 3.0 * light.radius)
+                d2 = np.sum((block.positions.astype(np.float64) - light.position) ** 2, axis=1)
+                keep = d2 > r * r
+                if not keep.all():
+                    block = block.subset(keep)
+            self._scene_packs[key] = block
+        return self._scene_packs[key]
+
+    def _relight(self, path, g, everything, span, frame, author, probe_dir):
+        from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
+
+        from .probe import fit_probe
+        from .relight import relight_sh
+        from .render import render_cube_faces
+
+        t = time.perf_counter()
+        centre = _alpha_centroid(g)
+        mask = np.ones(everything.count, bool)
+        mask[span[0]:span[1]] = False
+        rgb, alpha, _ = render_cube_faces(everything, centre, self.opts.probe_size, mask=mask)
+        t = self.clock.add("probe_render", t)
+        probe = fit_probe(rgb, degree=self.opts.probe_degree, alpha=alpha, center=centre)
+        t = self.clock.add("probe_fit", t)
+        local = self._local_normals.get(path)
+        if local is None or local.shape[0] != g.count:
+            n = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
+            local = normals_to_local(g.orientations, n)
+            self._local_normals[path] = local
+        normals = local_normals_to_world(g.orientations, local)
+        sh_relit, scale = relight_sh(g.sh, normals, probe, q=self.opts.relight_q, gamma=self.opts.relight_gamma,
+                                     t_max=self.opts.relight_t_max)
+        t = self.clock.add("transfer", t)
+        name = _safe_name(path)
+        tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
+        h, w = self.opts.probe_texture
+        probe.write_latlong_exr(tex, h, w)
+        self.probe_files += 1
+        rel = f"./{self.final_probe_dir.name}/{tex.name}"
+        author.probe(name, frame, centre, probe.to_3dgs(), rel)
+        self.clock.add("probe_write", t)
+        return sh_relit, scale
+
+    # ------------------------------------------------------------------ run
+    def run(self, progress: bool = True) -> ProcessSummary:
+        from pxr import UsdGeom
+
+        from .output_author import OutputAuthor
+        from .output_layer import OutputLayer
+
+        t_start = time.perf_counter()
+        self._open()
+        self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
+        self._read_static()
+        self._shot_lights = None
+        self._scene_packs = {}
+        self._scene_block = None
+        self._centre_cfg = replace(self.opts.dgsm, sampling="center")
+        self._local_normals = {}
+        self.affected = {}
+        self.probe_files = 0
+        self.lights_used = []
+        out_path = Path(self.output_path)
+        self.final_probe_dir = out_path.with_name(out_path.stem + "_probes")
+        probe_dir = out_path.with_name(f".{out_path.stem}_probes.tmp{os.getpid()}")
+        if probe_dir.exists():
+            shutil.rmtree(probe_dir)
+        probe_dir.mkdir(parents=True)
+        try:
+            with OutputLayer.create(self.input_path, self.output_path) as out:
+                author = OutputAuthor(out.stage, self.frames[0])
+                frames = self.frames
+                bar = None
+                if progress:
+                    from tqdm import tqdm
+
+                    bar = tqdm(total=len(frames), unit="frame", desc="usdgs process", leave=False)
+                t_frames = time.perf_counter()
+                written_lights = False
+                for f in frames:
+                    self._frame(f, author, probe_dir)
+                    if not written_lights and self.lights_used and self.lights_used[0].source == "estimated":
+                        write_estimated_lights(out.stage, self.lights_used)
+                        written_lights = True
+                    if bar:
+                        bar.update(1)
+                if bar:
+                    bar.close()
+                self.clock.add("frames", t_frames)
+                t0 = time.perf_counter()
+            self.clock.add("save", t0)
+            if self.final_probe_dir.exists():
+                shutil.rmtree(self.final_probe_dir)
+            if self.probe_files:
+                os.replace(probe_dir, self.final_probe_dir)
+        finally:
+            if probe_dir.exists():
+                shutil.rmtree(probe_dir, ignore_errors=True)
+        self.clock.add("total", t_start)
+        size = out_path.stat().st_size
+        if self.final_probe_dir.exists():
+            size += sum(p.stat().st_size for p in self.final_probe_dir.iterdir())
+        return ProcessSummary(self.input_path, self.output_path, self.roles, self.lights_used, self.frames,
+                              dict(self.clock.t), self.warnings, size, self.probe_files, author.samples_written,
+                              dict(self.affected))
