@@ -211,3 +211,36 @@ def test_process_user_errors(demo, tmp_path, capsys, argv, msg):
 def test_process_refuses_to_overwrite_input(demo, capsys):
     code = main(["process", str(demo), "-o", str(demo)])
     assert code == 2 and "demo.usda" in capsys.readouterr().err
+
+
+def test_distant_light_uses_directional_dgsm(demo, tmp_path):
+    """A DistantLight straight down: the floor right under each mover is shadowed, and the
+    transmittance there matches the exact parallel-ray transmittance."""
+    from usd_gs.gaussians import GaussianSet
+    from usd_gs.shadows import exact_transmittance_directional
+
+    shot = tmp_path / "sun.usda"
+    layer = Sdf.Layer.CreateNew(str(shot))
+    layer.subLayerPaths.append(str(demo))
+    layer.Save()
+    stage = Usd.Stage.Open(str(shot))
+    sun = UsdLux.DistantLight.Define(stage, "/Sun")
+    sun.AddRotateXOp().Set(-90.0)  # local -Z -> world -Y
+    sun.CreateIntensityAttr(3.0)
+    stage.GetRootLayer().Save()
+    out = tmp_path / "sun.lit.usdc"
+    assert main(["process", str(shot), "-o", str(out), "--frames", "1", "--sampling", "center", "-q"]) == 0
+    lit = Usd.Stage.Open(str(out))
+    casters = GaussianSet.concatenate([read_gaussian_prim(lit.GetPrimAtPath(f"/World/{n}"), Usd.TimeCode(1))
+                                       for n in ("CesiumMan", "Biker", "Guitar")])
+    got, ref = [], []
+    for b in lit.GetPrimAtPath("/World/Room").GetChildren():
+        attr = b.GetAttribute("primvars:usdgs:transmittance")
+        if not attr.HasAuthoredValue():
+            continue
+        g = read_gaussian_prim(b, Usd.TimeCode(1))
+        got.append(np.array(attr.Get(1.0)))
+        ref.append(exact_transmittance_directional(casters, g.positions.astype(np.float64), [0.0, -1.0, 0.0]))
+    got, ref = np.concatenate(got), np.concatenate(ref)
+    assert (ref < 0.5).sum() > 20
+    assert np.abs(got - ref).mean() < 0.01
