@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .dgsm_build import TILE, Atlas, _accumulate_point, _footprints, far_distance, t_max_for
+from .dgsm_build import TILE, Atlas, _accumulate_point, _footprints, atlas_buffers, far_distance, t_max_for
 from .dgsm_model import check_points, check_vector
 
 
@@ -142,12 +142,8 @@ def build_point_cube(light, occ, dir_dep: int, cov6, roi_points, face: int = 208
     mask[pix.ravel()] = True
     pixels = np.flatnonzero(mask)
     kmin, kmax = (int(kk[:, 0].min()), int(kk[:, 1].max())) if len(pts) else (0, -1)
-    index = np.full(6 * F * F, -1, np.int32)
-    index[pixels] = np.arange(len(pixels), dtype=np.int32)
-    nk = max(kmax - kmin + 1, 0)
-    out = np.ones((len(pixels), nk), np.float32)
-    pairs = np.zeros(len(pixels), np.int64)
-    erfs = np.zeros(len(pixels), np.int64)
+    index, out, pairs, erfs = atlas_buffers(6 * F * F, pixels, kmin, kmax)
+    nk = out.shape[1]
     if len(pixels) and nk and occ.shape[0]:
         occ = np.ascontiguousarray(occ, dtype=np.float64)
         n = occ.shape[0]

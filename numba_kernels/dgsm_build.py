@@ -265,6 +265,31 @@ def bin_tiles(light, mu, cov6, w: int, k_sigma: float, tile_active):
     return start, items, np.flatnonzero(is_glob).astype(np.int64), cone
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def cone_hits(dxs, dys, dzs, n, cone, o, hit):
+    """Cone test of occluder ``o`` (``cone[o] = (d, cos theta)`` of :func:`bin_tiles`) against
+    the first ``n`` unit directions ``(dxs, dys, dzs)``: ``hit[a] = d_a . d >= cos theta``.
+    Returns the number of hits. Branch-free, so numba vectorises it over the directions."""
+    cx, cy, cz, cc = cone[o, 0], cone[o, 1], cone[o, 2], cone[o, 3]
+    nh = 0
+    for a in range(n):
+        h = dxs[a] * cx + dys[a] * cy + dzs[a] * cz >= cc
+        hit[a] = h
+        nh += h
+    return nh
+
+
+def atlas_buffers(n_pixels: int, pixels, kmin: int, kmax: int):
+    """Storage of an atlas over its ROI pixels ``pixels`` (sorted ids among ``n_pixels``) and
+    bins ``kmin..kmax``: ``(index (n_pixels,) int32`` row of each pixel in ``values`` or -1,
+    ``values (len(pixels), nk) float32`` all 1 (transmittance), ``pairs`` and ``erfs`` (len(pixels),)
+    int64 zero counters), with ``nk = max(kmax - kmin + 1, 0)``."""
+    index = np.full(n_pixels, -1, np.int32)
+    index[pixels] = np.arange(len(pixels), dtype=np.int32)
+    m, nk = len(pixels), max(kmax - kmin + 1, 0)
+    return index, np.ones((m, nk), np.float32), np.zeros(m, np.int64), np.zeros(m, np.int64)
+
+
 # ------------------------------------------------------------------ accumulate
 @njit(cache=True, fastmath=False)
 def _cum(zk, z0_nonneg, e0, e0m):
@@ -353,13 +378,7 @@ def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
         if t >= 0:
             for q in range(tile_start[t], tile_start[t + 1]):
                 o = tile_items[q]
-                cx, cy, cz, cc = cone[o, 0], cone[o, 1], cone[o, 2], cone[o, 3]
-                nh = 0
-                for a in range(npx):  # branch-free, vectorisable cone test for the whole tile
-                    h = dxs[a] * cx + dys[a] * cy + dzs[a] * cz >= cc
-                    hit[a] = h
-                    nh += h
-                if nh == 0:
+                if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
                     continue
                 for a in range(npx):
                     if not hit[a]:
@@ -439,12 +458,8 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
         pixels, kmin, kmax = roi_voxels(light, pts, width, K, t_max)
     else:
         pixels, kmin, kmax = np.arange(width * width, dtype=np.int64), 0, K - 1
-    index = np.full(width * width, -1, np.int32)
-    index[pixels] = np.arange(len(pixels), dtype=np.int32)
-    nk = max(kmax - kmin + 1, 0)
-    out = np.ones((len(pixels), nk), np.float32)
-    pairs = np.zeros(len(pixels), np.int64)
-    erfs = np.zeros(len(pixels), np.int64)
+    index, out, pairs, erfs = atlas_buffers(width * width, pixels, kmin, kmax)
+    nk = out.shape[1]
     if len(pixels) and nk and occ.shape[0]:
         occ = np.ascontiguousarray(occ, dtype=np.float64)
         if use_tiles:

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .dgsm_build import TILE
+from .dgsm_build import TILE, atlas_buffers
 from .dgsm_build import accumulate_one_call as _accumulate_one
 from .dgsm_exact import unit_direction
 from .dgsm_model import check_points
@@ -225,11 +225,7 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
     mask[pix.ravel()] = True
     pixels = np.flatnonzero(mask)
     kmin, kmax = int(kk[:, 0].min()), int(kk[:, 1].max())
-    index = np.full(width * width, -1, np.int32)
-    index[pixels] = np.arange(len(pixels), dtype=np.int32)
-    out = np.ones((len(pixels), kmax - kmin + 1), np.float32)
-    pairs = np.zeros(len(pixels), np.int64)
-    erfs = np.zeros(len(pixels), np.int64)
+    index, out, pairs, erfs = atlas_buffers(width * width, pixels, kmin, kmax)
     occ = np.ascontiguousarray(occ, dtype=np.float64)
     wt = width // TILE
     active = np.zeros(wt * wt, np.bool_)

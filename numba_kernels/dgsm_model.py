@@ -59,6 +59,7 @@ import numpy as np
 from numba import njit, prange
 
 from .erf_stable import erf_diff_nonneg
+from .quaternion import quat_to_rotation
 
 ALPHA_MAX = 1.0 - 1e-7
 TAU_STAR_MAX = -math.log1p(-ALPHA_MAX)
@@ -213,21 +214,8 @@ MAPPING_CODES = {"avg": 0, "simple": 1, "mass": 2, "diag": 3}
 def _pack_gaussians(pos, quat, scales, alpha, kappa, code, occ, cov6):
     two_pi_15 = (2.0 * math.pi) ** 1.5
     for n in prange(pos.shape[0]):
-        w, x, y, z = float(quat[n, 0]), float(quat[n, 1]), float(quat[n, 2]), float(quat[n, 3])
-        qn = math.sqrt(w * w + x * x + y * y + z * z)
-        if qn > 0.0:
-            w, x, y, z = w / qn, x / qn, y / qn, z / qn
-        else:
-            w, x, y, z = 1.0, 0.0, 0.0, 0.0
-        r00 = 1 - 2 * (y * y + z * z)
-        r01 = 2 * (x * y - w * z)
-        r02 = 2 * (x * z + w * y)
-        r10 = 2 * (x * y + w * z)
-        r11 = 1 - 2 * (x * x + z * z)
-        r12 = 2 * (y * z - w * x)
-        r20 = 2 * (x * z - w * y)
-        r21 = 2 * (y * z + w * x)
-        r22 = 1 - 2 * (x * x + y * y)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
+            float(quat[n, 0]), float(quat[n, 1]), float(quat[n, 2]), float(quat[n, 3]))
         s0 = float(scales[n, 0]) ** 2
         s1 = float(scales[n, 1]) ** 2
         s2 = float(scales[n, 2]) ** 2

@@ -23,8 +23,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .dgsm_build import cone_hits
 from .dgsm_model import segment_depth
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
+from .quaternion import quat_to_rotation
 
 
 @njit(cache=True, fastmath=False)
@@ -143,13 +145,7 @@ def _refine_groups(light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, til
             tt = gtile[g]
             for q in range(tile_start[tt], tile_start[tt + 1]):
                 o = tile_items[q]
-                cx, cy, cz, cc = cone[o, 0], cone[o, 1], cone[o, 2], cone[o, 3]
-                nh = 0
-                for a in range(n):
-                    h = dxs[a] * cx + dys[a] * cy + dzs[a] * cz >= cc
-                    hit[a] = h
-                    nh += h
-                if nh == 0:
+                if cone_hits(dxs, dys, dzs, n, cone, o, hit) == 0:
                     continue
                 for a in range(n):
                     if hit[a]:
@@ -297,21 +293,8 @@ def hash_normals(seed, rid, s):
 def _footprints_q(pos, quat, scales, idx, mode, n, seed, out):
     for r in prange(idx.shape[0]):
         g = idx[r]
-        w, x, y, z = float(quat[g, 0]), float(quat[g, 1]), float(quat[g, 2]), float(quat[g, 3])
-        qn = math.sqrt(w * w + x * x + y * y + z * z)
-        if qn > 0.0:
-            w, x, y, z = w / qn, x / qn, y / qn, z / qn
-        else:
-            w, x, y, z = 1.0, 0.0, 0.0, 0.0
-        r00 = 1 - 2 * (y * y + z * z)
-        r01 = 2 * (x * y - w * z)
-        r02 = 2 * (x * z + w * y)
-        r10 = 2 * (x * y + w * z)
-        r11 = 1 - 2 * (x * x + z * z)
-        r12 = 2 * (y * z - w * x)
-        r20 = 2 * (x * z - w * y)
-        r21 = 2 * (y * z + w * x)
-        r22 = 1 - 2 * (x * x + y * y)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
+            float(quat[g, 0]), float(quat[g, 1]), float(quat[g, 2]), float(quat[g, 3]))
         for s in range(n):
             if mode == 0:
                 z0, z1, z2 = 0.0, 0.0, 0.0

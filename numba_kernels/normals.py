@@ -37,6 +37,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .quaternion import quat_to_rotation
+
 _P1, _P2, _P3 = 73856093, 19349663, 83492791
 _CHUNK = 256
 _VOTE_NEIGHBOURS = 32  # neighbours kept per Gaussian for the consistency passes
@@ -136,12 +138,7 @@ def quat_axis_smallest(q, s):
 
     Returns (ax, ay, az, ratio) with ratio = smallest / middle scale (1 = isotropic pair).
     """
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    nq = math.sqrt(w * w + x * x + y * y + z * z)
-    if nq > 0.0:
-        w, x, y, z = w / nq, x / nq, y / nq, z / nq
-    else:
-        w = 1.0
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(q[0], q[1], q[2], q[3])
     k = 0
     if s[1] < s[k]:
         k = 1
@@ -152,10 +149,10 @@ def quat_axis_smallest(q, s):
     mid = a if a < b else b
     ratio = s[k] / mid if mid > 0.0 else 1.0
     if k == 0:
-        return 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y), ratio
+        return r00, r10, r20, ratio
     if k == 1:
-        return 2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x), ratio
-    return 2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y), ratio
+        return r01, r11, r21, ratio
+    return r02, r12, r22, ratio
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -336,21 +333,8 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
 @njit(parallel=True, cache=True, fastmath=False)
 def _rotate_kernel(quat, vec, inverse, out):
     for i in prange(quat.shape[0]):
-        w = np.float64(quat[i, 0])
-        x = np.float64(quat[i, 1])
-        y = np.float64(quat[i, 2])
-        z = np.float64(quat[i, 3])
-        nq = math.sqrt(w * w + x * x + y * y + z * z)
-        if nq > 0.0:
-            w /= nq
-            x /= nq
-            y /= nq
-            z /= nq
-        else:
-            w = 1.0
-        r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)
-        r10, r11, r12 = 2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)
-        r20, r21, r22 = 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
+            np.float64(quat[i, 0]), np.float64(quat[i, 1]), np.float64(quat[i, 2]), np.float64(quat[i, 3]))
         a = np.float64(vec[i, 0])
         b = np.float64(vec[i, 1])
         c = np.float64(vec[i, 2])

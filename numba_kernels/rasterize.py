@@ -62,6 +62,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .quaternion import quat_to_rotation
+
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
 SH_C2_0 = 1.0925484305920792
@@ -130,21 +132,15 @@ def _jacobian(x, y, z, intr, clamp):
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 def _rotation_scale(qw, qx, qy, qz, sx, sy, sz):
-    """R diag(s) (row-major 9-tuple) for the normalised quaternion (w, x, y, z); zero -> identity."""
-    qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    if qn > 0.0 and math.isfinite(qn):
-        qw /= qn
-        qx /= qn
-        qy /= qn
-        qz /= qn
-    else:
-        qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+    """R diag(s) (row-major 9-tuple) for the normalised quaternion (w, x, y, z); zero or
+    non-finite -> identity (``quaternion.quat_to_rotation``)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(qw, qx, qy, qz)
     sx = abs(sx)
     sy = abs(sy)
     sz = abs(sz)
-    return ((1.0 - 2.0 * (qy * qy + qz * qz)) * sx, 2.0 * (qx * qy - qw * qz) * sy, 2.0 * (qx * qz + qw * qy) * sz,
-            2.0 * (qx * qy + qw * qz) * sx, (1.0 - 2.0 * (qx * qx + qz * qz)) * sy, 2.0 * (qy * qz - qw * qx) * sz,
-            2.0 * (qx * qz - qw * qy) * sx, 2.0 * (qy * qz + qw * qx) * sy, (1.0 - 2.0 * (qx * qx + qy * qy)) * sz)
+    return (r00 * sx, r01 * sy, r02 * sz,
+            r10 * sx, r11 * sy, r12 * sz,
+            r20 * sx, r21 * sy, r22 * sz)
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")

@@ -31,6 +31,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .quaternion import quat_to_rotation
 from .sh_real import NORM, degree_from_num_coeffs, sh_eval_batch
 
 _CHUNK = 64
@@ -71,28 +72,12 @@ def _zh_kernel(quat, albedo, zh_color, zh_mono, has_mono, probe, degree, gamma, 
         acc = np.zeros((3, gn), dtype=np.float64)
         for g in range(gn):
             i = i0 + g
-            w = np.float64(quat[i, 0])
-            qx = np.float64(quat[i, 1])
-            qy = np.float64(quat[i, 2])
-            qz = np.float64(quat[i, 3])
-            nq = math.sqrt(w * w + qx * qx + qy * qy + qz * qz)
-            if nq > 0.0:
-                w /= nq
-                qx /= nq
-                qy /= nq
-                qz /= nq
-            else:
-                w = 1.0
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
+                np.float64(quat[i, 0]), np.float64(quat[i, 1]), np.float64(quat[i, 2]), np.float64(quat[i, 3]))
             # columns of R(q): tangent, bitangent, normal
-            x[g] = 1.0 - 2.0 * (qy * qy + qz * qz)
-            y[g] = 2.0 * (qx * qy + w * qz)
-            z[g] = 2.0 * (qx * qz - w * qy)
-            x[gn + g] = 2.0 * (qx * qy - w * qz)
-            y[gn + g] = 1.0 - 2.0 * (qx * qx + qz * qz)
-            z[gn + g] = 2.0 * (qy * qz + w * qx)
-            x[2 * gn + g] = 2.0 * (qx * qz + w * qy)
-            y[2 * gn + g] = 2.0 * (qy * qz - w * qx)
-            z[2 * gn + g] = 1.0 - 2.0 * (qx * qx + qy * qy)
+            x[g], y[g], z[g] = r00, r10, r20
+            x[gn + g], y[gn + g], z[gn + g] = r01, r11, r21
+            x[2 * gn + g], y[2 * gn + g], z[2 * gn + g] = r02, r12, r22
             for ax in range(3):
                 for l in range(min(degree, 3) + 1):
                     for c in range(3):

@@ -24,18 +24,13 @@ QUICK_FRAMES = ds.QUICK.frames
 ROOM_LO = np.array([-4.0, 0.0, -4.0])
 ROOM_HI = np.array([4.0, 3.0, 4.0])
 
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """The --quick demo written through the CLI entry (data found by the default search)."""
-    out = tmp_path_factory.mktemp("demo") / "stages" / "demo.usda"  # 'stages/' does not exist yet
-    rc = main(["demo", "make", "-o", str(out), "--quick", "-q"])
-    assert rc == 0
-    return out
+# quick_demo (tests/conftest.py): the --quick demo written once per session through the CLI
+# entry (data found by the default search) into a 'stages/' folder that did not exist yet.
 
 
 @pytest.fixture(scope="module")
-def stage(demo):
-    st = Usd.Stage.Open(str(demo))
+def stage(quick_demo):
+    st = Usd.Stage.Open(str(quick_demo))
     assert st is not None
     return st
 
@@ -48,10 +43,10 @@ def _all_files(root: Path) -> dict[str, bytes]:
 
 
 # ----------------------------------------------------------------------------- structure
-def test_files_and_stage_metadata(demo, stage):
-    assert sorted(_all_files(demo)) == ["demo.usda", *(f"demo_data/{n}.usdc" for n in sorted(ds.LAYER_NAMES))]
-    assert demo.stat().st_size < 10_000  # the root layer is small text
-    assert demo.read_text().startswith("#usda 1.0")
+def test_files_and_stage_metadata(quick_demo, stage):
+    assert sorted(_all_files(quick_demo)) == ["demo.usda", *(f"demo_data/{n}.usdc" for n in sorted(ds.LAYER_NAMES))]
+    assert quick_demo.stat().st_size < 10_000  # the root layer is small text
+    assert quick_demo.read_text().startswith("#usda 1.0")
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
     assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
     assert stage.GetTimeCodesPerSecond() == 24.0
@@ -60,7 +55,7 @@ def test_files_and_stage_metadata(demo, stage):
     assert list(stage.GetRootLayer().subLayerPaths) == [f"./demo_data/{n}.usdc" for n in ds.LAYER_NAMES]
     # Each data layer carries the same timing, so its samples are not rescaled when composed.
     for n in ds.LAYER_NAMES:
-        layer = Sdf.Layer.FindOrOpen(str(demo.parent / "demo_data" / f"{n}.usdc"))
+        layer = Sdf.Layer.FindOrOpen(str(quick_demo.parent / "demo_data" / f"{n}.usdc"))
         assert layer.timeCodesPerSecond == 24.0
 
 
@@ -300,10 +295,10 @@ def test_camera_sees_the_avatars_and_the_guitar(stage):
 
 
 # ----------------------------------------------------------------------------- CLI behaviour
-def test_deterministic_bytes(demo, tmp_path):
+def test_deterministic_bytes(quick_demo, tmp_path):
     again = tmp_path / "demo.usda"
     assert main(["demo", "make", "-o", str(again), "--quick", "-q"]) == 0
-    a, b = _all_files(demo), _all_files(again)
+    a, b = _all_files(quick_demo), _all_files(again)
     assert a.keys() == b.keys()
     for name in a:
         assert a[name] == b[name], name

@@ -10,7 +10,6 @@ from pxr import Gf, Sdf, Usd, UsdLux
 
 from usd_gs import sh3dgs
 from usd_gs.cli import main
-from usd_gs.demo_stage import QUICK, make_demo
 from usd_gs.usd_io import read_gaussian_prim
 
 FRAMES = "1-2"
@@ -20,30 +19,31 @@ def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    root = tmp_path_factory.mktemp("demo") / "demo.usda"
-    make_demo(root, QUICK)
-    return root
+def _shot_over(demo: Path, shot: Path) -> Usd.Stage:
+    """A new stage at ``shot`` whose root layer sublayers ``demo`` (edits go to the new layer)."""
+    layer = Sdf.Layer.CreateNew(str(shot))
+    layer.subLayerPaths.append(str(demo))
+    layer.Save()
+    return Usd.Stage.Open(str(shot))
 
 
 @pytest.fixture(scope="module")
-def processed(demo, tmp_path_factory):
+def processed(quick_demo, tmp_path_factory):
     out = tmp_path_factory.mktemp("out") / "demo.lit.usdc"
-    before = {p: _digest(p) for p in demo.parent.rglob("*") if p.is_file()}
+    before = {p: _digest(p) for p in quick_demo.parent.rglob("*") if p.is_file()}
     # centre sampling: transmittance is then comparable with the exact function at the centres
-    assert main(["process", str(demo), "-o", str(out), "--frames", FRAMES, "-q", "--sampling", "center"]) == 0
-    after = {p: _digest(p) for p in demo.parent.rglob("*") if p.is_file()}
+    assert main(["process", str(quick_demo), "-o", str(out), "--frames", FRAMES, "-q", "--sampling", "center"]) == 0
+    after = {p: _digest(p) for p in quick_demo.parent.rglob("*") if p.is_file()}
     return out, before, after
 
 
-def test_input_untouched_and_output_layered(demo, processed):
+def test_input_untouched_and_output_layered(quick_demo, processed):
     out, before, after = processed
     assert before == after  # the input files are byte-identical after the run
     layer = Sdf.Layer.FindOrOpen(str(out))
     assert len(layer.subLayerPaths) == 1
-    assert Path(out.parent / layer.subLayerPaths[0]).resolve() == demo.resolve() or \
-        Path(layer.subLayerPaths[0]).resolve() == demo.resolve()
+    assert Path(out.parent / layer.subLayerPaths[0]).resolve() == quick_demo.resolve() or \
+        Path(layer.subLayerPaths[0]).resolve() == quick_demo.resolve()
     # only overs for input prims; new prims are ours
     for spec in layer.rootPrims:
         if spec.name == "World":
@@ -102,10 +102,10 @@ def test_scene_transmittance_matches_exact_reference(processed):
     assert err.mean() < 0.01 and err[shadowed].mean() < 0.08 and abs((got - ref)[shadowed].mean()) < 0.03
 
 
-def test_shadowed_colour_is_original_times_transmittance(processed, demo):
+def test_shadowed_colour_is_original_times_transmittance(processed, quick_demo):
     out, _, _ = processed
     stage = Usd.Stage.Open(str(out))
-    src = Usd.Stage.Open(str(demo))
+    src = Usd.Stage.Open(str(quick_demo))
     frame = 1.0
     for b in stage.GetPrimAtPath("/World/Room").GetChildren():
         attr = b.GetAttribute("primvars:usdgs:transmittance")
@@ -123,10 +123,10 @@ def test_shadowed_colour_is_original_times_transmittance(processed, demo):
         pytest.fail("no shadowed brick")
 
 
-def test_avatars_relit_with_probe(processed, demo):
+def test_avatars_relit_with_probe(processed, quick_demo):
     out, _, _ = processed
     stage = Usd.Stage.Open(str(out))
-    src = Usd.Stage.Open(str(demo))
+    src = Usd.Stage.Open(str(quick_demo))
     for name in ("CesiumMan", "Biker", "Guitar"):
         prim = stage.GetPrimAtPath(f"/World/{name}")
         scale_attr = prim.GetAttribute("primvars:usdgs:lightScale")
@@ -150,16 +150,16 @@ def test_avatars_relit_with_probe(processed, demo):
         assert np.mean(t > 0.5) > 0.7, (name, t.mean())
 
 
-def test_output_is_deterministic_with_mc_sampling(demo, tmp_path):
+def test_output_is_deterministic_with_mc_sampling(quick_demo, tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     a, b = tmp_path / "a" / "x.lit.usdc", tmp_path / "b" / "x.lit.usdc"  # same name: probe paths are relative
     for out in (a, b):
-        assert main(["process", str(demo), "-o", str(out), "--frames", "2", "-q"]) == 0
+        assert main(["process", str(quick_demo), "-o", str(out), "--frames", "2", "-q"]) == 0
     assert a.read_bytes() == b.read_bytes()
 
 
-def test_failure_leaves_no_partial_output(demo, tmp_path, monkeypatch):
+def test_failure_leaves_no_partial_output(quick_demo, tmp_path, monkeypatch):
     from usd_gs import pipeline
 
     calls = {"n": 0}
@@ -173,16 +173,13 @@ def test_failure_leaves_no_partial_output(demo, tmp_path, monkeypatch):
 
     monkeypatch.setattr(pipeline.ShotProcessor, "_frame", boom)
     out = tmp_path / "x.lit.usdc"
-    assert main(["process", str(demo), "-o", str(out), "--frames", FRAMES, "-q"]) == 130
+    assert main(["process", str(quick_demo), "-o", str(out), "--frames", FRAMES, "-q"]) == 130
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
-def test_stage_lights_are_used(demo, tmp_path, capsys):
+def test_stage_lights_are_used(quick_demo, tmp_path, capsys):
     shot = tmp_path / "shot.usda"
-    layer = Sdf.Layer.CreateNew(str(shot))
-    layer.subLayerPaths.append(str(demo))
-    layer.Save()
-    stage = Usd.Stage.Open(str(shot))
+    stage = _shot_over(quick_demo, shot)
     key = UsdLux.SphereLight.Define(stage, "/Rig/Key")
     key.AddTranslateOp().Set(Gf.Vec3d(0.0, 2.8, 0.0))
     key.CreateIntensityAttr(5.0)
@@ -201,29 +198,26 @@ def test_stage_lights_are_used(demo, tmp_path, capsys):
     (["--avatar", "/World/Nope"], "/World/Nope"),
     (["--direct-fraction", "2"], "--direct-fraction"),
 ])
-def test_process_user_errors(demo, tmp_path, capsys, argv, msg):
-    code = main(["process", str(demo), "-o", str(tmp_path / "o.usdc"), *argv])
+def test_process_user_errors(quick_demo, tmp_path, capsys, argv, msg):
+    code = main(["process", str(quick_demo), "-o", str(tmp_path / "o.usdc"), *argv])
     err = capsys.readouterr().err
     assert code == 2 and msg in err and "Traceback" not in err
     assert not (tmp_path / "o.usdc").exists()
 
 
-def test_process_refuses_to_overwrite_input(demo, capsys):
-    code = main(["process", str(demo), "-o", str(demo)])
+def test_process_refuses_to_overwrite_input(quick_demo, capsys):
+    code = main(["process", str(quick_demo), "-o", str(quick_demo)])
     assert code == 2 and "demo.usda" in capsys.readouterr().err
 
 
-def test_distant_light_uses_directional_dgsm(demo, tmp_path):
+def test_distant_light_uses_directional_dgsm(quick_demo, tmp_path):
     """A DistantLight straight down: the floor right under each mover is shadowed, and the
     transmittance there matches the exact parallel-ray transmittance."""
     from usd_gs.gaussians import GaussianSet
     from usd_gs.shadows import exact_transmittance_directional
 
     shot = tmp_path / "sun.usda"
-    layer = Sdf.Layer.CreateNew(str(shot))
-    layer.subLayerPaths.append(str(demo))
-    layer.Save()
-    stage = Usd.Stage.Open(str(shot))
+    stage = _shot_over(quick_demo, shot)
     sun = UsdLux.DistantLight.Define(stage, "/Sun")
     sun.AddRotateXOp().Set(-90.0)  # local -Z -> world -Y
     sun.CreateIntensityAttr(3.0)

@@ -10,7 +10,7 @@ from pxr import Gf, Usd, UsdGeom
 from usd_gs.camera import Camera
 from usd_gs.cli import main
 from usd_gs.cmd_render import frame_path
-from usd_gs.demo_stage import CAMERA_APERTURE_MM, QUICK, make_demo
+from usd_gs.demo_stage import CAMERA_APERTURE_MM
 from usd_gs.gaussians import GaussianSet
 from usd_gs.preview import (
     drawn_gaussian_prims,
@@ -29,16 +29,9 @@ H = round(W * CAMERA_APERTURE_MM[1] / CAMERA_APERTURE_MM[0])  # 90: height from 
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    root = tmp_path_factory.mktemp("demo") / "demo.usda"
-    make_demo(root, QUICK)
-    return root
-
-
-@pytest.fixture(scope="module")
-def processed(demo, tmp_path_factory):
+def processed(quick_demo, tmp_path_factory):
     out = tmp_path_factory.mktemp("out") / "demo.lit.usdc"
-    assert main(["process", str(demo), "-o", str(out), "--frames", "1-2", "-q"]) == 0
+    assert main(["process", str(quick_demo), "-o", str(out), "--frames", "1-2", "-q"]) == 0
     return out
 
 
@@ -71,11 +64,11 @@ def _small_stage(path, up="Y", camera_paths=(), frames=(1.0,)):
 
 
 # ----------------------------------------------------------------------------- frames to PNG
-def test_render_frames_writes_pngs_equal_to_the_renderer(demo, tmp_path):
-    assert main(["render", str(demo), "--frames", "1-2", "-o", str(tmp_path / "f_####.png"), "--width", str(W),
+def test_render_frames_writes_pngs_equal_to_the_renderer(quick_demo, tmp_path):
+    assert main(["render", str(quick_demo), "--frames", "1-2", "-o", str(tmp_path / "f_####.png"), "--width", str(W),
                  "-q"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0001.png", "f_0002.png"]
-    stage = open_stage(str(demo))
+    stage = open_stage(str(quick_demo))
     imgs = []
     for f in (1, 2):
         img = _png(tmp_path / f"f_{f:04d}.png")
@@ -92,8 +85,8 @@ def test_render_frames_writes_pngs_equal_to_the_renderer(demo, tmp_path):
     assert 0.0 < moved < 0.5
 
 
-def test_default_camera_is_the_stage_camera(demo, tmp_path):
-    stage = open_stage(str(demo))
+def test_default_camera_is_the_stage_camera(quick_demo, tmp_path):
+    stage = open_stage(str(quick_demo))
     cam = resolve_camera(stage, None, 1.0, W)
     ref = Camera.from_usd(stage.GetPrimAtPath("/World/Camera"), 1.0, width=W)
     assert (cam.width, cam.height) == (W, H)
@@ -101,8 +94,8 @@ def test_default_camera_is_the_stage_camera(demo, tmp_path):
     np.testing.assert_array_equal(cam.rotation, ref.rotation)
     assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.near, cam.far) == (ref.fx, ref.fy, ref.cx, ref.cy, ref.near, ref.far)
     # the CLI without --camera gives the same image as with --camera /World/Camera
-    assert main(["render", str(demo), "-o", str(tmp_path / "a.png"), "--width", str(W), "-q"]) == 0
-    assert main(["render", str(demo), "-o", str(tmp_path / "b.png"), "--width", str(W), "-q",
+    assert main(["render", str(quick_demo), "-o", str(tmp_path / "a.png"), "--width", str(W), "-q"]) == 0
+    assert main(["render", str(quick_demo), "-o", str(tmp_path / "b.png"), "--width", str(W), "-q",
                  "--camera", "/World/Camera", "--frames", "1"]) == 0
     np.testing.assert_array_equal(_png(tmp_path / "a.png"), _png(tmp_path / "b.png"))
 
@@ -115,10 +108,10 @@ def test_first_camera_in_path_order(tmp_path):
 
 
 # ----------------------------------------------------------------------------- compare
-def test_compare_is_input_and_processed_side_by_side(demo, processed, tmp_path):
+def test_compare_is_input_and_processed_side_by_side(quick_demo, processed, tmp_path):
     args = ["--frames", "2", "--width", str(W), "-q"]
     assert main(["render", str(processed), "-o", str(tmp_path / "c.png"), "--compare", *args]) == 0
-    assert main(["render", str(demo), "-o", str(tmp_path / "in.png"), *args]) == 0
+    assert main(["render", str(quick_demo), "-o", str(tmp_path / "in.png"), *args]) == 0
     assert main(["render", str(processed), "-o", str(tmp_path / "out.png"), *args]) == 0
     c = _png(tmp_path / "c.png")
     left, right = _png(tmp_path / "in.png"), _png(tmp_path / "out.png")
@@ -131,7 +124,7 @@ def test_compare_is_input_and_processed_side_by_side(demo, processed, tmp_path):
     assert diff.mean() > 0.5
     # the shadows darken the room: away from the avatars and the guitar (their own coverage
     # below 2%), a good share of pixels lost light and none gained any
-    stage = open_stage(str(demo))
+    stage = open_stage(str(quick_demo))
     movers = GaussianSet.concatenate([read_gaussian_prim(stage.GetPrimAtPath(p), 2.0)
                                       for p in ("/World/Biker", "/World/CesiumMan", "/World/Guitar")])
     room = render(movers, resolve_camera(stage, None, 2.0, W)).alpha < 0.02
@@ -150,15 +143,15 @@ def test_compare_needs_sublayers(tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- EXR
-def test_exr_holds_the_linear_render(demo, tmp_path):
+def test_exr_holds_the_linear_render(quick_demo, tmp_path):
     import OpenEXR
 
-    assert main(["render", str(demo), "--frames", "2", "-o", str(tmp_path / "e_##.exr"), "--exr",
+    assert main(["render", str(quick_demo), "--frames", "2", "-o", str(tmp_path / "e_##.exr"), "--exr",
                  "--width", str(W), "--background", "0.25,0.5,1", "-q"]) == 0
     with OpenEXR.File(str(tmp_path / "e_02.exr")) as f:
         px = f.channels()["RGBA"].pixels
     assert px.shape == (H, W, 4) and px.dtype == np.float32
-    ref = render_stage_frame(open_stage(str(demo)), 2, None, W, background=(0.25, 0.5, 1.0))
+    ref = render_stage_frame(open_stage(str(quick_demo)), 2, None, W, background=(0.25, 0.5, 1.0))
     np.testing.assert_array_equal(px[..., :3], ref.rgb)
     np.testing.assert_array_equal(px[..., 3], ref.alpha)
     # some pixels exceed the 8-bit range or are not multiples of 1/255: real float data
@@ -240,8 +233,8 @@ def test_frame_path():
 
 @pytest.mark.parametrize("case", ["missing_stage", "no_prim", "not_camera", "no_hash", "no_dir", "bad_ext",
                                   "bad_background"])
-def test_user_errors_exit_2_naming_the_thing(demo, tmp_path, capsys, case):
-    stage = str(demo)
+def test_user_errors_exit_2_naming_the_thing(quick_demo, tmp_path, capsys, case):
+    stage = str(quick_demo)
     out = str(tmp_path / "f_####.png")
     argv, needle = {
         "missing_stage": (["render", str(tmp_path / "nope.usda"), "-o", out], "nope.usda"),
@@ -262,9 +255,9 @@ def test_user_errors_exit_2_naming_the_thing(demo, tmp_path, capsys, case):
     assert not list(tmp_path.glob("*.png"))
 
 
-def test_compare_on_an_unprocessed_stage_warns(demo, tmp_path, capsys):
+def test_compare_on_an_unprocessed_stage_warns(quick_demo, tmp_path, capsys):
     # the demo input has data sublayers but no /UsdGs prim: it works, with a warning naming the sublayer
-    assert main(["render", str(demo), "-o", str(tmp_path / "c.png"), "--compare", "--width", "32"]) == 0
+    assert main(["render", str(quick_demo), "-o", str(tmp_path / "c.png"), "--compare", "--width", "32"]) == 0
     err = capsys.readouterr().err
     assert "warning:" in err and "cesium_man.usdc" in err
     assert _png(tmp_path / "c.png").shape == (18, 2 * 32 + 4, 3)

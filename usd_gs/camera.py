@@ -21,7 +21,8 @@ Cube faces: OpenGL cube-map order ``+X, -X, +Y, -Y, +Z, -Z`` and orientation, th
 ``v = 2 (i + 0.5) / size - 1`` (OpenGL spec table with s = u, t = v: +X (1, -v, -u),
 -X (-1, -v, u), +Y (u, 1, v), -Y (u, -1, -v), +Z (u, -v, 1), -Z (-u, -v, -1)).
 
-This module imports numpy only (``pxr`` is imported inside :meth:`Camera.from_usd`).
+This module imports numpy only (and the numpy-only ``numba_kernels.cubemap_dirs``; ``pxr`` is
+imported inside :meth:`Camera.from_usd`).
 """
 
 from __future__ import annotations
@@ -30,21 +31,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from numba_kernels.cubemap_dirs import FACE_FRAMES, FACE_NAMES
+
 from .errors import UserError
 
-# OpenGL cube-map faces: (forward, right, down) per face, order +X, -X, +Y, -Y, +Z, -Z.
-CUBE_FACE_NAMES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
-CUBE_FACE_FRAMES = np.array(
-    [
-        [[1, 0, 0], [0, 0, -1], [0, -1, 0]],
-        [[-1, 0, 0], [0, 0, 1], [0, -1, 0]],
-        [[0, 1, 0], [1, 0, 0], [0, 0, 1]],
-        [[0, -1, 0], [1, 0, 0], [0, 0, -1]],
-        [[0, 0, 1], [1, 0, 0], [0, -1, 0]],
-        [[0, 0, -1], [-1, 0, 0], [0, -1, 0]],
-    ],
-    dtype=np.float64,
-)
+# OpenGL cube-map faces, shared with numba_kernels/cubemap_dirs.py (a numpy-only module):
+# names +X, -X, +Y, -Y, +Z, -Z and (6, 3, 3) float64 (forward, right, down) per face.
+CUBE_FACE_NAMES = FACE_NAMES
+CUBE_FACE_FRAMES = FACE_FRAMES
 
 # Camera-space to view-space (x right, y down, z depth): diag(1, -1, -1).
 _FLIP = np.diag([1.0, -1.0, -1.0])
