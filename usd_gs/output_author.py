@@ -30,11 +30,12 @@ PROBE_TEXTURE = "usdgs:probe:texture"
 class _Track:
     """Last authored value of one attribute, for change detection."""
 
-    __slots__ = ("last", "started")
+    __slots__ = ("last", "started", "clean")
 
     def __init__(self):
         self.last = None
         self.started = False
+        self.clean = True  # the last value (or the input's, before anything) is the unaffected one
 
 
 class OutputAuthor:
@@ -65,6 +66,7 @@ class OutputAuthor:
         key = (prim_path, name)
         track = self._tracks.setdefault(key, _Track())
         value = np.ascontiguousarray(value)
+        track.clean = unaffected is not None and np.array_equal(value, unaffected)
         if track.last is not None and np.array_equal(track.last, value):
             return False
         if not track.started and unaffected is not None and np.array_equal(value, unaffected):
@@ -83,6 +85,11 @@ class OutputAuthor:
         self.samples_written += 1
         self.bytes_written += value.nbytes
         return True
+
+    def is_clean(self, prim_path: str) -> bool:
+        """True if the prim's transmittance, as last authored (or never), is all ones."""
+        track = self._tracks.get((prim_path, TRANSMITTANCE))
+        return track is None or track.clean
 
     def receiver(self, prim_path: str, frame: float, transmittance: np.ndarray, sh_out: np.ndarray,
                  sh_in: np.ndarray) -> bool:

@@ -246,11 +246,31 @@ class ShotProcessor:
         return lights
 
     # ------------------------------------------------------------------ per frame
-    def _frame(self, frame: float, author, probe_dir: Path):
+    def _shot_setup(self):
+        """What does not change from frame to frame: static receivers (concatenated once, with
+        each prim's bounding sphere for brick-level culling) and static casters."""
         from .gaussians import GaussianSet
+        from .shot_shadows import Receivers, prim_spheres
+
+        receivers = [r.path for r in self.roles if r.receives_shadows]
+        self._static_recv_paths = [p for p in receivers if p in self.static]
+        self._dyn_recv_paths = [p for p in receivers if p not in self.static]
+        self._static_recv = Receivers.build([(p, self.static[p]) for p in self._static_recv_paths])
+        self._spheres = prim_spheres(self._static_recv, self.opts.dgsm.k_sigma)
+        static_casters = [r.path for r in self.roles if not r.dynamic and r.casts_shadows]
+        self._scene_block = (GaussianSet.concatenate([self.static[p] for p in static_casters], label="scene casters")
+                             if static_casters else None)
+        casters = Receivers.build([(p, self.static[p]) for p in static_casters])
+        spheres = prim_spheres(casters, self.opts.dgsm.k_sigma)
+        self._caster_ranges = [casters.ranges[p] for p in spheres]
+        self._caster_centres = np.array([spheres[p][0] for p in spheres]).reshape(-1, 3)
+        self._caster_radii = np.array([spheres[p][1] for p in spheres])
+        self._casters_dyn = [r.path for r in self.roles if r.dynamic and r.casts_shadows and r.role != "scene"]
+
+    def _frame(self, frame: float, author, probe_dir: Path):
         from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
         from .shadows import prepare_occluders
-        from .shot_shadows import Receivers, caster_transmittance, occluders_toward
+        from .shot_shadows import Receivers, caster_transmittance, occluders_toward, prims_in_shadow, toward_mask
 
         clk = self.clock
         t = time.perf_counter()
@@ -260,92 +280,136 @@ class ShotProcessor:
         lights = self._lights(frame)
         self.lights_used = lights
         t = time.perf_counter()
-
-        casters_dyn = [r.path for r in self.roles if r.dynamic and r.casts_shadows and r.role != "scene"]
-        static_casters = [r.path for r in self.roles if not r.dynamic and r.casts_shadows]
-        receivers = [r.path for r in self.roles if r.receives_shadows]
-        dyn_receivers = [p for p in receivers if p in dyn]
-        recv = Receivers.build([(p, sets[p]) for p in receivers])
-        own = {p: Receivers(sets[p], {p: (0, sets[p].count)}) for p in dyn_receivers}
-        if self._scene_block is None and static_casters:
-            self._scene_block = GaussianSet.concatenate([self.static[p] for p in static_casters],
-                                                        label="scene casters")
-        scene_block = self._scene_block if dyn_receivers else None
+        srecv = self._static_recv
+        drecv = Receivers.build([(p, sets[p]) for p in self._dyn_recv_paths])
         t = clk.add("prepare", t)
 
-        per_light = []
         cfg = self.opts.dgsm
-        packed = {q: prepare_occluders(sets[q], cfg) for q in casters_dyn} if lights else {}
+        packed = {q: prepare_occluders(sets[q], cfg) for q in self._casters_dyn} if lights else {}
+        s_light, d_light, touched = [], [], []
         for light in lights:
-            tl = np.ones(recv.gaussians.count)
-            for q in casters_dyn:
-                tq, _ = caster_transmittance(sets[q], recv, light, cfg, exclude=q, roi=self.opts.roi,
-                                             prepared=packed[q])
-                tl *= tq
-            if scene_block is not None and scene_block.count:
-                block = self._scene_casters_for(scene_block, light)
-                for p in dyn_receivers:
-                    near = occluders_toward(block, sets[p].positions, light, cfg.k_sigma)
+            ts = np.ones(srecv.gaussians.count)
+            hits = []
+            td = np.ones(drecv.gaussians.count)
+            for q in self._casters_dyn:
+                hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma)
+                if hit:
+                    cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
+                    idx, val = caster_transmittance(sets[q], srecv, light, cfg, roi=self.opts.roi,
+                                                    prepared=packed[q], candidates=cand)
+                    ts[idx] *= val
+                    hits.append(idx[val < 1.0])
+                idx, val = caster_transmittance(sets[q], drecv, light, cfg, exclude=q, roi=self.opts.roi,
+                                                prepared=packed[q])
+                td[idx] *= val
+            if self._scene_block is not None and self._scene_block.count:
+                block = self._scene_block
+                keep = self._emitter_keep(light)
+                for p in self._dyn_recv_paths:
+                    # brick-level culling first, then per Gaussian
+                    near_prims = toward_mask(self._caster_centres, self._caster_radii, sets[p].positions, light)
+                    if not near_prims.any():
+                        continue
+                    cand = np.concatenate([np.arange(*self._caster_ranges[k]) for k in np.flatnonzero(near_prims)])
+                    cand = cand[keep[cand]]
+                    near = occluders_toward(block, sets[p].positions, light, cfg.k_sigma, candidates=cand)
                     if near.size == 0:
                         continue
-                    ts, _ = caster_transmittance(block.subset(near), own[p], light, self._centre_cfg, roi="cone",
-                                                 bias=self.opts.contact_bias / self.mpu)
-                    a, b = recv.ranges[p]
-                    tl[a:b] *= ts
-            per_light.append(tl)
-        shares = light_shares(lights, recv.gaussians.positions)
-        t_all = combine_lights(per_light, shares)
+                    a, b = drecv.ranges[p]
+                    idx, val = caster_transmittance(block.subset(near), drecv, light, self._centre_cfg, roi="cone",
+                                                    bias=self.opts.contact_bias / self.mpu,
+                                                    candidates=np.arange(a, b))
+                    td[idx] *= val
+            s_light.append(ts)
+            d_light.append(td)
+            touched.extend(hits)
+        # static receivers: combine lights only where some light is blocked
+        u = np.unique(np.concatenate(touched)) if touched else np.zeros(0, np.int64)
+        t_static_u = np.ones(0, np.float32)
+        if u.size:
+            per = [ts[u] for ts in s_light]
+            t_static_u = combine_lights(per, light_shares(lights, srecv.gaussians.positions[u]))
+        t_dyn = (combine_lights(d_light, light_shares(lights, drecv.gaussians.positions)) if lights
+                 else np.ones(drecv.gaussians.count, np.float32))
         t = clk.add("shadows", t)
 
         # relighting (probe + transfer) for avatars and objects
         relit = {}
-        everything = None
         for r in self.roles:
-            if not (r.dynamic and r.relight and r.role in ("avatar", "object")):
-                continue
-            if everything is None:
-                order = list(sets)
-                everything = GaussianSet.concatenate([sets[p] for p in order], label="shot")
-                offsets = np.cumsum([0] + [sets[p].count for p in order])
-                spans = {p: (offsets[i], offsets[i + 1]) for i, p in enumerate(order)}
-            relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author, probe_dir)
+            if r.dynamic and r.relight and r.role in ("avatar", "object"):
+                everything, spans = self._shot_buffer(dyn)
+                relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author,
+                                              probe_dir)
         t = clk.add("relight", t)
 
-        # authoring
+        # authoring: static prims only where shadowed now or before; dynamic ones always
         affected = []
-        for p in receivers:
-            a, b = recv.ranges[p]
-            tp = t_all[a:b]
+        f = self.opts.direct_fraction
+        owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in self._static_recv_paths]), u, side="right")
+        for k, p in enumerate(self._static_recv_paths):
+            sel = owner == k
+            if not sel.any() and author.is_clean(p):
+                continue
+            a, b = srecv.ranges[p]
+            tp = np.ones(b - a, np.float32)
+            tp[u[sel] - a] = t_static_u[sel]
+            sh_out = scale_sh(sets[p].sh, attenuation_factor(tp, f)) if (tp < 1).any() else sets[p].sh
+            if author.receiver(p, frame, tp, sh_out, sets[p].sh):
+                affected.append(p)
+        for p in self._dyn_recv_paths:
+            a, b = drecv.ranges[p]
+            tp = t_dyn[a:b]
             base_sh = relit[p][0] if p in relit else sets[p].sh
-            sh_out = scale_sh(base_sh, attenuation_factor(tp, self.opts.direct_fraction)) if (tp < 1).any() else base_sh
+            sh_out = scale_sh(base_sh, attenuation_factor(tp, f)) if (tp < 1).any() else base_sh
             if author.receiver(p, frame, tp, sh_out, sets[p].sh) or p in relit:
                 affected.append(p)
         for p, (sh_relit, scale) in relit.items():
             author.light_scale(p, frame, scale)
-            if p not in receivers:
+            if p not in drecv.ranges:
                 author.receiver(p, frame, np.ones(sets[p].count, np.float32), sh_relit, sets[p].sh)
         clk.add("write", t)
         for p in affected:
             self.affected[p] = self.affected.get(p, 0) + 1
 
-    def _scene_casters_for(self, scene_block, light):
-        """Static casters for ``light``, computed once per shot and light.
+    def _shot_buffer(self, dyn: dict):
+        """Every Gaussian of the frame in one set for probe renders: the static part is copied
+        once per shot, each frame only overwrites the dynamic prims' slots."""
+        from .gaussians import GaussianSet
 
-        Scene Gaussians within ``emitter_radius`` of a point light are the light's own
-        emitter (an estimated light sits inside the bright cluster it was found in) and do
-        not cast shadows for it. Per frame only the casters between the light and the
-        receivers are used (``shot_shadows.occluders_toward``).
-        """
+        counts = tuple((p, g.count, g.sh_degree) for p, g in dyn.items())
+        if self._buffer is None or self._buffer[0] != counts:
+            order = list(self.static) + list(dyn)
+            sets = {**self.static, **dyn}
+            buf = GaussianSet.concatenate([sets[p] for p in order], label="shot")
+            offsets = np.cumsum([0] + [sets[p].count for p in order])
+            spans = {p: (int(offsets[i]), int(offsets[i + 1])) for i, p in enumerate(order)}
+            self._buffer = (counts, buf, spans, -1)
+            return buf, spans
+        _, buf, spans, _ = self._buffer
+        k = buf.sh.shape[1]
+        for p, g in dyn.items():
+            a, b = spans[p]
+            buf.positions[a:b] = g.positions
+            buf.orientations[a:b] = g.orientations
+            buf.scales[a:b] = g.scales
+            buf.opacities[a:b] = g.opacities
+            buf.sh[a:b] = 0.0
+            buf.sh[a:b, : g.sh.shape[1]] = g.sh[:, :k]
+        return buf, spans
+
+    def _emitter_keep(self, light) -> np.ndarray:
+        """(N_static_casters,) bool, computed once per shot and light: False for the scene
+        Gaussians within ``emitter_radius`` of a point light. They are the light's own emitter
+        (an estimated light sits inside the bright cluster it was found in) and cast no shadow
+        for it."""
         key = (light.kind, tuple(np.round(light.position, 6)), tuple(np.round(light.direction, 6)))
         if key not in self._scene_packs:
-            block = scene_block
+            block = self._scene_block
+            keep = np.ones(block.count, bool)
             if light.kind == "point":
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * light.radius)
-                d2 = np.sum((block.positions.astype(np.float64) - light.position) ** 2, axis=1)
-                keep = d2 > r * r
-                if not keep.all():
-                    block = block.subset(keep)
-            self._scene_packs[key] = block
+                keep = np.sum((block.positions.astype(np.float64) - light.position) ** 2, axis=1) > r * r
+            self._scene_packs[key] = keep
         return self._scene_packs[key]
 
     def _relight(self, path, g, everything, span, frame, author, probe_dir):
@@ -393,9 +457,10 @@ class ShotProcessor:
         self._open()
         self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
         self._read_static()
+        self._shot_setup()
         self._shot_lights = None
         self._scene_packs = {}
-        self._scene_block = None
+        self._buffer = None
         self._centre_cfg = replace(self.opts.dgsm, sampling="center")
         self._local_normals = {}
         self.affected = {}

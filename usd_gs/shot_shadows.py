@@ -83,46 +83,50 @@ def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_
     return np.flatnonzero((cos_ang >= cos_half) & (dist >= dc - r))
 
 
-def occluders_toward(occluders: GaussianSet, receiver_positions: np.ndarray, light, k_sigma: float = 3.0,
-                     margin: float = 0.0) -> np.ndarray:
-    """Indices of the ``occluders`` that can lie between ``light`` and the receivers.
-
-    The receivers' bounding sphere (centre and radius of their box, plus ``margin``) seen
-    from the light spans a cone (a cylinder for a directional light); an occluder matters
-    only if its ``k_sigma`` sphere meets that cone and it is not farther from the light than
-    the far side of the receivers. Conservative: the transmittance of every receiver is
-    unchanged by dropping the others.
-    """
-    if occluders.count == 0 or receiver_positions.shape[0] == 0:
-        return np.zeros(0, np.int64)
+def toward_mask(centres: np.ndarray, reach: np.ndarray, receiver_positions: np.ndarray, light) -> np.ndarray:
+    """(N,) bool: spheres (``centres`` (N, 3), radii ``reach`` (N,)) that can lie between
+    ``light`` and the receivers (the cone from a point light around the receivers' bounding
+    sphere, or the cylinder along a directional light), not beyond the receivers' far side."""
     x = receiver_positions.astype(np.float64)
     lo, hi = x.min(axis=0), x.max(axis=0)
     c = 0.5 * (lo + hi)
-    r = 0.5 * float(np.linalg.norm(hi - lo)) + margin
-    mu = occluders.positions.astype(np.float64)
-    reach = k_sigma * occluders.scales.astype(np.float64).max(axis=1)
+    r = 0.5 * float(np.linalg.norm(hi - lo))
+    mu = np.asarray(centres, np.float64)
     if light.kind == "directional":
         d = np.asarray(light.direction, np.float64)
         d = d / np.linalg.norm(d)
         v = mu - c
         along = v @ d
         perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
-        return np.flatnonzero((perp <= r + reach) & (along <= r + reach))
+        return (perp <= r + reach) & (along <= r + reach)
     lp = np.asarray(light.position, np.float64)
     to_c = c - lp
     dc = float(np.linalg.norm(to_c))
     v = mu - lp
     dist = np.linalg.norm(v, axis=1)
     if dc <= r:
-        return np.flatnonzero(dist <= dc + r + reach)
+        return dist <= dc + r + reach
     axis = to_c / dc
     along = v @ axis
     perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
-    # distance from the occluder centre to the cone of half-angle asin(r / dc) around ``axis``
+    # distance from each centre to the cone of half-angle asin(r / dc) around ``axis``
     sin_h = r / dc
     cos_h = np.sqrt(1.0 - sin_h * sin_h)
     cone_dist = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
-    return np.flatnonzero((cone_dist <= reach) & (dist <= dc + r + reach))
+    return (cone_dist <= reach) & (dist <= dc + r + reach)
+
+
+def occluders_toward(occluders: GaussianSet, receiver_positions: np.ndarray, light, k_sigma: float = 3.0,
+                     candidates: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the ``occluders`` (among ``candidates``, default all) that can lie between
+    ``light`` and the receivers: an occluder matters only if its ``k_sigma`` sphere meets
+    :func:`toward_mask`'s region. Conservative: dropping the others changes no receiver's
+    transmittance."""
+    if occluders.count == 0 or receiver_positions.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    cand = np.arange(occluders.count, dtype=np.int64) if candidates is None else np.asarray(candidates, np.int64)
+    reach = k_sigma * occluders.scales[cand].astype(np.float64).max(axis=1)
+    return cand[toward_mask(occluders.positions[cand], reach, receiver_positions, light)]
 
 
 def _build(occluders: GaussianSet, prepared, light, points: np.ndarray, cfg: DGSMConfig):
@@ -139,30 +143,36 @@ def _build(occluders: GaussianSet, prepared, light, points: np.ndarray, cfg: DGS
 
 def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cfg: DGSMConfig,
                          exclude: str | None = None, roi: str = "cone", bias: float = 0.0,
-                         prepared=None) -> tuple[np.ndarray, int]:
-    """(N_receivers,) float64 transmittance of every receiver through ``occluders`` (1 where
-    no DGSM sample is taken), and the number of receivers sampled.
+                         prepared=None, candidates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Transmittance through ``occluders`` of the receivers it can shadow, sparse:
+    ``(idx (M,) int64 receiver indices, values (M,) float64)``; every other receiver has 1.
 
-    ``exclude``: a receiver prim path whose Gaussians are not sampled (the caster itself).
-    ``roi``: 'cone' (module docstring), 'box' (the paper's box around the occluders) or
-    'all' (every receiver; also what ``cfg.use_roi = False`` gives). ``bias``: metres to move sample points toward the
-    light (against self-contact shadowing).
+    ``candidates``: receiver indices to consider (None: all), e.g. the Gaussians of the
+    bricks whose bounds meet the caster's shadow. ``exclude``: a receiver prim path whose
+    Gaussians are not sampled (the caster itself). ``roi``: 'cone' (module docstring),
+    'box' (the paper's box around the occluders) or 'all' (every candidate; also what
+    ``cfg.use_roi = False`` gives). ``bias``: metres to move sample points toward the light
+    (against self-contact shadowing).
     """
     g = receivers.gaussians
-    out = np.ones(g.count)
+    empty = (np.zeros(0, np.int64), np.zeros(0))
     if occluders.count == 0 or g.count == 0:
-        return out, 0
-    if roi == "all" or not cfg.use_roi:
-        idx = np.arange(g.count, dtype=np.int64)
-    elif roi == "box":
-        idx = roi_indices(occluders, g.positions, cfg)
-    else:
-        idx = shadow_cone_indices(occluders, g.positions, light, cfg.k_sigma)
+        return empty
+    cand = np.arange(g.count, dtype=np.int64) if candidates is None else np.asarray(candidates, np.int64)
     if exclude is not None and exclude in receivers.ranges:
         a, b = receivers.ranges[exclude]
-        idx = idx[(idx < a) | (idx >= b)]
+        cand = cand[(cand < a) | (cand >= b)]
+    if cand.size == 0:
+        return empty
+    pos = g.positions[cand]
+    if roi == "all" or not cfg.use_roi:
+        idx = cand
+    elif roi == "box":
+        idx = cand[roi_indices(occluders, pos, cfg)]
+    else:
+        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma)]
     if idx.size == 0:
-        return out, 0
+        return empty
     prepared = prepared if prepared is not None else prepare_occluders(occluders, cfg)
     pts, w = footprint_samples(g, idx, cfg)
     if bias > 0:
@@ -174,5 +184,51 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
             toward = toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-12)
         pts = pts + bias * toward
     key, atlas = _build(occluders, prepared, light, np.ascontiguousarray(pts), cfg)
-    out[idx] = sample_dgsm(DGSM(key, atlas, idx, pts, w, cfg, prepared=prepared))
-    return out, int(idx.size)
+    return idx, sample_dgsm(DGSM(key, atlas, idx, pts, w, cfg, prepared=prepared))
+
+
+def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[np.ndarray, float]]:
+    """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent."""
+    out = {}
+    g = receivers.gaussians
+    for path, (a, b) in receivers.ranges.items():
+        if b <= a:
+            continue
+        ext = g.subset(slice(a, b)).extent(k_sigma).astype(np.float64)
+        out[path] = (0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0])))
+    return out
+
+
+def prims_in_shadow(spheres: dict, occluders: GaussianSet, light, k_sigma: float = 3.0) -> list[str]:
+    """Receiver prims whose bounding sphere can meet the shadow of ``occluders`` (conservative)."""
+    if not spheres or occluders.count == 0:
+        return []
+    names = list(spheres)
+    centres = np.array([spheres[n][0] for n in names])
+    radii = np.array([spheres[n][1] for n in names])
+    ext = occluders.extent(k_sigma).astype(np.float64)
+    c = 0.5 * (ext[0] + ext[1])
+    r = 0.5 * float(np.linalg.norm(ext[1] - ext[0]))
+    if light.kind == "directional":
+        d = np.asarray(light.direction, np.float64)
+        d = d / np.linalg.norm(d)
+        v = centres - c
+        along = v @ d
+        perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
+        hit = (perp <= r + radii) & (along >= -r - radii)
+    else:
+        lp = np.asarray(light.position, np.float64)
+        to_c = c - lp
+        dc = float(np.linalg.norm(to_c))
+        if dc <= r:
+            return names
+        axis = to_c / dc
+        v = centres - lp
+        dist = np.linalg.norm(v, axis=1)
+        along = v @ axis
+        perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
+        sin_h = r / dc
+        cos_h = np.sqrt(1.0 - sin_h * sin_h)
+        cone_dist = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
+        hit = (cone_dist <= radii) & (dist + radii >= dc - r)
+    return [n for n, h in zip(names, hit, strict=True) if h]
