@@ -58,62 +58,58 @@ class Receivers:
         return m
 
 
-def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_sigma: float = 3.0) -> np.ndarray:
-    """Receivers (indices into ``positions`` (N, 3)) that ``occluders`` can shadow from ``light``."""
-    ext = occluders.extent(k_sigma).astype(np.float64)
-    c = 0.5 * (ext[0] + ext[1])
-    r = 0.5 * float(np.linalg.norm(ext[1] - ext[0])) * (1.0 + 1e-6) + 1e-9
-    x = positions.astype(np.float64)
+def _bounding_sphere(ext: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of the sphere around a (2, 3) box."""
+    ext = np.asarray(ext, np.float64)
+    return 0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0]))
+
+
+def _beam(centres: np.ndarray, c: np.ndarray, r: float, light) -> tuple[np.ndarray, np.ndarray]:
+    """Geometry of points against the light's beam through the sphere (c, r): a cone from a
+    point light (half-angle asin(r / |c - light|)), a cylinder along a directional light.
+
+    Returns ``(gap, depth)`` per point: ``gap`` the distance from the point to the beam
+    (<= 0 inside), ``depth`` how far past the sphere's near side the point lies along the
+    light (>= 0 beyond the near side). A light inside the sphere gives gap -inf (everything
+    is in its beam)."""
+    x = np.asarray(centres, np.float64)
     if light.kind == "directional":
         d = np.asarray(light.direction, np.float64)
         d = d / np.linalg.norm(d)
         v = x - c
         along = v @ d
-        perp2 = np.einsum("ij,ij->i", v, v) - along * along
-        return np.flatnonzero((along >= -r) & (perp2 <= r * r))
+        perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
+        return perp - r, along + r
     lp = np.asarray(light.position, np.float64)
-    to_c = c - lp
-    dc = float(np.linalg.norm(to_c))
-    if dc <= r:  # the light is inside the caster's bounds: everything may be shadowed
-        return np.arange(x.shape[0], dtype=np.int64)
+    dc = float(np.linalg.norm(c - lp))
     v = x - lp
     dist = np.linalg.norm(v, axis=1)
-    cos_half = np.sqrt(max(dc * dc - r * r, 0.0)) / dc
-    cos_ang = (v @ to_c) / np.maximum(dist * dc, 1e-300)
-    return np.flatnonzero((cos_ang >= cos_half) & (dist >= dc - r))
+    if dc <= r:
+        return np.full(x.shape[0], -np.inf), dist
+    along = v @ ((c - lp) / dc)
+    perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
+    sin_h = r / dc
+    cos_h = np.sqrt(1.0 - sin_h * sin_h)
+    gap = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
+    return gap, dist - (dc - r)
+
+
+def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_sigma: float = 3.0) -> np.ndarray:
+    """Receivers (indices into ``positions`` (N, 3)) that ``occluders`` can shadow from ``light``:
+    inside the beam through the occluders' bounding sphere and not before its near side."""
+    c, r = _bounding_sphere(occluders.extent(k_sigma))
+    gap, depth = _beam(positions, c, r * (1.0 + 1e-6) + 1e-9, light)
+    return np.flatnonzero((gap <= 0.0) & (depth >= 0.0))
 
 
 def toward_mask(centres: np.ndarray, reach: np.ndarray, receiver_positions: np.ndarray, light) -> np.ndarray:
     """(N,) bool: spheres (``centres`` (N, 3), radii ``reach`` (N,)) that can lie between
-    ``light`` and the receivers (the cone from a point light around the receivers' bounding
-    sphere, or the cylinder along a directional light), not beyond the receivers' far side."""
+    ``light`` and the receivers: they meet the beam through the receivers' bounding sphere
+    and do not lie beyond its far side."""
     x = receiver_positions.astype(np.float64)
-    lo, hi = x.min(axis=0), x.max(axis=0)
-    c = 0.5 * (lo + hi)
-    r = 0.5 * float(np.linalg.norm(hi - lo))
-    mu = np.asarray(centres, np.float64)
-    if light.kind == "directional":
-        d = np.asarray(light.direction, np.float64)
-        d = d / np.linalg.norm(d)
-        v = mu - c
-        along = v @ d
-        perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
-        return (perp <= r + reach) & (along <= r + reach)
-    lp = np.asarray(light.position, np.float64)
-    to_c = c - lp
-    dc = float(np.linalg.norm(to_c))
-    v = mu - lp
-    dist = np.linalg.norm(v, axis=1)
-    if dc <= r:
-        return dist <= dc + r + reach
-    axis = to_c / dc
-    along = v @ axis
-    perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
-    # distance from each centre to the cone of half-angle asin(r / dc) around ``axis``
-    sin_h = r / dc
-    cos_h = np.sqrt(1.0 - sin_h * sin_h)
-    cone_dist = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
-    return (cone_dist <= reach) & (dist <= dc + r + reach)
+    c, r = _bounding_sphere(np.stack([x.min(axis=0), x.max(axis=0)]))
+    gap, depth = _beam(centres, c, r, light)
+    return (gap <= reach) & (depth <= 2.0 * r + reach)
 
 
 def occluders_toward(occluders: GaussianSet, receiver_positions: np.ndarray, light, k_sigma: float = 3.0,
@@ -206,29 +202,7 @@ def prims_in_shadow(spheres: dict, occluders: GaussianSet, light, k_sigma: float
     names = list(spheres)
     centres = np.array([spheres[n][0] for n in names])
     radii = np.array([spheres[n][1] for n in names])
-    ext = occluders.extent(k_sigma).astype(np.float64)
-    c = 0.5 * (ext[0] + ext[1])
-    r = 0.5 * float(np.linalg.norm(ext[1] - ext[0]))
-    if light.kind == "directional":
-        d = np.asarray(light.direction, np.float64)
-        d = d / np.linalg.norm(d)
-        v = centres - c
-        along = v @ d
-        perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
-        hit = (perp <= r + radii) & (along >= -r - radii)
-    else:
-        lp = np.asarray(light.position, np.float64)
-        to_c = c - lp
-        dc = float(np.linalg.norm(to_c))
-        if dc <= r:
-            return names
-        axis = to_c / dc
-        v = centres - lp
-        dist = np.linalg.norm(v, axis=1)
-        along = v @ axis
-        perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
-        sin_h = r / dc
-        cos_h = np.sqrt(1.0 - sin_h * sin_h)
-        cone_dist = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
-        hit = (cone_dist <= radii) & (dist + radii >= dc - r)
+    c, r = _bounding_sphere(occluders.extent(k_sigma))
+    gap, depth = _beam(centres, c, r, light)
+    hit = (gap <= radii) & (depth >= -radii)
     return [n for n, h in zip(names, hit, strict=True) if h]
