@@ -93,3 +93,15 @@ def test_write_estimated_lights_round_trip():
     np.testing.assert_allclose(back[0].position, [1, 2, 3])
     assert back[0].intensity == pytest.approx(3.0)
     np.testing.assert_allclose(back[0].color, [1.0, 0.9, 0.8], rtol=1e-6)
+
+
+def test_role_table_groups_bricks():
+    from usd_gs.roles import role_table
+
+    infos = [info(f"/W/Room/Brick_{i:04d}") for i in range(5)] + [info("/W/Man", True)]
+    roles, _ = resolve_roles(infos)
+    table = role_table(roles, {r.path: 10 for r in roles})
+    lines = table.splitlines()
+    assert len(lines) == 3
+    assert lines[1].startswith("/W/Room/* (5 prims)") and lines[1].rstrip().endswith("50")
+    assert lines[2].startswith("/W/Man") and " avatar " in lines[2]

@@ -89,7 +89,12 @@ def cmd_process(args) -> int:
     fps = d["frames_per_second"]
     print(f"{len(summary.frames)} frame(s), {d['seconds_per_frame']:.3f} s/frame"
           + (f" ({fps:.2f} frames/s)" if fps else ""))
-    print(f"affected frames per prim: {summary.affected or 'none'}")
+    if summary.affected:
+        most = sorted(summary.affected.items(), key=lambda kv: (-kv[1], kv[0]))
+        shown = ", ".join(f"{p} {n}" for p, n in most[:6]) + (f", ... ({len(most) - 6} more)" if len(most) > 6 else "")
+        print(f"authored: {len(most)} prim(s) over {len(summary.frames)} frame(s); frames per prim: {shown}")
+    else:
+        print("authored: nothing (no prim was shadowed or relit)")
     print(f"wrote {summary.output} ({summary.output_bytes / 1e6:.1f} MB with {summary.probe_files} probe textures)")
     return 0
 

@@ -87,12 +87,29 @@ def resolve_roles(infos, scene_paths=(), avatar_paths=(), object_paths=()) -> tu
     return out, warnings
 
 
-def role_table(roles: list[ResolvedRole], counts: dict[str, int] | None = None) -> str:
-    """A printable table: prim, role, source, dynamic, casts, receives, relight (and count)."""
+def role_table(roles: list[ResolvedRole], counts: dict[str, int] | None = None, group_min: int = 4) -> str:
+    """A printable table: prim, role, source, dynamic, casts, receives, relight (and count).
+
+    ``group_min`` or more sibling prims with identical settings (e.g. the bricks of one
+    capture) are shown as one row ``<parent>/* (N prims)`` with their summed count.
+    """
+    groups: dict[tuple, list[ResolvedRole]] = {}
+    for r in roles:
+        key = (r.path.rsplit("/", 1)[0], r.role, r.source, r.dynamic, r.casts_shadows, r.receives_shadows, r.relight)
+        groups.setdefault(key, []).append(r)
+    rows_src = []
+    for key, members in groups.items():
+        if len(members) >= group_min:
+            rows_src.append((f"{key[0]}/* ({len(members)} prims)", members[0], [m.path for m in members]))
+        else:
+            rows_src.extend((m.path, m, [m.path]) for m in members)
     head = ["prim", "role", "from", "dynamic", "casts", "receives", "relight"] + (["count"] if counts else [])
-    rows = [[r.path, r.role, r.source, "yes" if r.dynamic else "no", "yes" if r.casts_shadows else "no",
-             "yes" if r.receives_shadows else "no", "yes" if r.relight else "no"]
-            + ([f"{counts.get(r.path, 0):,}"] if counts else []) for r in roles]
+
+    def yn(v):
+        return "yes" if v else "no"
+
+    rows = [[name, r.role, r.source, yn(r.dynamic), yn(r.casts_shadows), yn(r.receives_shadows), yn(r.relight)]
+            + ([f"{sum(counts.get(p, 0) for p in paths):,}"] if counts else []) for name, r, paths in rows_src]
     widths = [max(len(h), *(len(row[i]) for row in rows)) if rows else len(h) for i, h in enumerate(head)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
     lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)) for row in rows]
