@@ -270,7 +270,14 @@ class ShotProcessor:
     def _frame(self, frame: float, author, probe_dir: Path):
         from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
         from .shadows import prepare_occluders
-        from .shot_shadows import Receivers, caster_transmittance, occluders_toward, prims_in_shadow, toward_mask
+        from .shot_shadows import (
+            Receivers,
+            caster_transmittance,
+            occluder_sphere,
+            occluders_toward,
+            prims_in_shadow,
+            toward_mask,
+        )
 
         clk = self.clock
         t = time.perf_counter()
@@ -286,21 +293,22 @@ class ShotProcessor:
 
         cfg = self.opts.dgsm
         packed = {q: prepare_occluders(sets[q], cfg) for q in self._casters_dyn} if lights else {}
+        bound = {q: occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
         s_light, d_light, touched = [], [], []
         for light in lights:
             ts = np.ones(srecv.gaussians.count)
             hits = []
             td = np.ones(drecv.gaussians.count)
             for q in self._casters_dyn:
-                hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma)
+                hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma, bound[q])
                 if hit:
                     cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
                     idx, val = caster_transmittance(sets[q], srecv, light, cfg, roi=self.opts.roi,
-                                                    prepared=packed[q], candidates=cand)
+                                                    prepared=packed[q], candidates=cand, sphere=bound[q])
                     ts[idx] *= val
                     hits.append(idx[val < 1.0])
                 idx, val = caster_transmittance(sets[q], drecv, light, cfg, exclude=q, roi=self.opts.roi,
-                                                prepared=packed[q])
+                                                prepared=packed[q], sphere=bound[q])
                 td[idx] *= val
             if self._scene_block is not None and self._scene_block.count:
                 block = self._scene_block

@@ -94,10 +94,17 @@ def _beam(centres: np.ndarray, c: np.ndarray, r: float, light) -> tuple[np.ndarr
     return gap, dist - (dc - r)
 
 
-def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_sigma: float = 3.0) -> np.ndarray:
+def occluder_sphere(occluders: GaussianSet, k_sigma: float = 3.0) -> tuple[np.ndarray, float]:
+    """Bounding sphere (centre, radius) of the occluders' ``k_sigma`` extent; compute it once per
+    frame and pass it to the functions below instead of recomputing it per light."""
+    return _bounding_sphere(occluders.extent(k_sigma))
+
+
+def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_sigma: float = 3.0,
+                        sphere=None) -> np.ndarray:
     """Receivers (indices into ``positions`` (N, 3)) that ``occluders`` can shadow from ``light``:
     inside the beam through the occluders' bounding sphere and not before its near side."""
-    c, r = _bounding_sphere(occluders.extent(k_sigma))
+    c, r = sphere if sphere is not None else occluder_sphere(occluders, k_sigma)
     gap, depth = _beam(positions, c, r * (1.0 + 1e-6) + 1e-9, light)
     return np.flatnonzero((gap <= 0.0) & (depth >= 0.0))
 
@@ -139,7 +146,8 @@ def _build(occluders: GaussianSet, prepared, light, points: np.ndarray, cfg: DGS
 
 def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cfg: DGSMConfig,
                          exclude: str | None = None, roi: str = "cone", bias: float = 0.0,
-                         prepared=None, candidates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                         prepared=None, candidates: np.ndarray | None = None,
+                         sphere=None) -> tuple[np.ndarray, np.ndarray]:
     """Transmittance through ``occluders`` of the receivers it can shadow, sparse:
     ``(idx (M,) int64 receiver indices, values (M,) float64)``; every other receiver has 1.
 
@@ -148,7 +156,7 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
     Gaussians are not sampled (the caster itself). ``roi``: 'cone' (module docstring),
     'box' (the paper's box around the occluders) or 'all' (every candidate; also what
     ``cfg.use_roi = False`` gives). ``bias``: metres to move sample points toward the light
-    (against self-contact shadowing).
+    (against self-contact shadowing). ``sphere``: :func:`occluder_sphere` if already known.
     """
     g = receivers.gaussians
     empty = (np.zeros(0, np.int64), np.zeros(0))
@@ -166,7 +174,7 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
     elif roi == "box":
         idx = cand[roi_indices(occluders, pos, cfg)]
     else:
-        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma)]
+        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma, sphere)]
     if idx.size == 0:
         return empty
     prepared = prepared if prepared is not None else prepare_occluders(occluders, cfg)
@@ -195,14 +203,14 @@ def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[
     return out
 
 
-def prims_in_shadow(spheres: dict, occluders: GaussianSet, light, k_sigma: float = 3.0) -> list[str]:
+def prims_in_shadow(spheres: dict, occluders: GaussianSet, light, k_sigma: float = 3.0, sphere=None) -> list[str]:
     """Receiver prims whose bounding sphere can meet the shadow of ``occluders`` (conservative)."""
     if not spheres or occluders.count == 0:
         return []
     names = list(spheres)
     centres = np.array([spheres[n][0] for n in names])
     radii = np.array([spheres[n][1] for n in names])
-    c, r = _bounding_sphere(occluders.extent(k_sigma))
+    c, r = sphere if sphere is not None else occluder_sphere(occluders, k_sigma)
     gap, depth = _beam(centres, c, r, light)
     hit = (gap <= radii) & (depth >= -radii)
     return [n for n, h in zip(names, hit, strict=True) if h]
