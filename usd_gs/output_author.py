@@ -46,7 +46,6 @@ class OutputAuthor:
         self.first_frame = float(first_frame)
         self._tracks: dict[tuple[str, str], _Track] = {}
         self.samples_written = 0
-        self.bytes_written = 0
 
     # ------------------------------------------------------------------ attributes
     def _attr(self, prim_path: str, name: str, type_name, primvar: bool, element_size: int = 1):
@@ -78,12 +77,10 @@ class OutputAuthor:
             if not track.started and unaffected is not None and frame != self.first_frame:
                 attr.Set(vt_cls.FromNumpy(np.ascontiguousarray(unaffected)), self.first_frame)
                 self.samples_written += 1
-                self.bytes_written += unaffected.nbytes
             attr.Set(vt_cls.FromNumpy(value), frame)
         track.started = True
         track.last = value.copy()
         self.samples_written += 1
-        self.bytes_written += value.nbytes
         return True
 
     def is_clean(self, prim_path: str) -> bool:

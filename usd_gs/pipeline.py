@@ -32,6 +32,7 @@ import numpy as np
 
 from .errors import UserError
 from .light_prims import ShotLight, read_stage_lights, write_estimated_lights
+from .lights import alpha_weighted_centroid
 from .shadows import DGSMConfig
 
 
@@ -135,12 +136,6 @@ def default_output_path(input_path: str) -> str:
     return str(p.with_name(p.stem + ".lit.usdc"))
 
 
-def _alpha_centroid(g) -> np.ndarray:
-    w = g.opacities.astype(np.float64)
-    p = g.positions.astype(np.float64)
-    return (w @ p) / w.sum() if w.sum() > 0 else p.mean(axis=0)
-
-
 def _safe_name(path: str) -> str:
     return path.rstrip("/").rsplit("/", 1)[-1]
 
@@ -209,9 +204,9 @@ class ShotProcessor:
             return []
         movers = [r.path for r in self.roles if r.role == "avatar"] or [r.path for r in self.roles if r.dynamic]
         picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
-        cents = [_alpha_centroid(self._read(p, f)) for p in movers for f in picks]
+        cents = [alpha_weighted_centroid(self._read(p, f)) for p in movers for f in picks]
         if not cents:
-            cents = [_alpha_centroid(GaussianSet.concatenate(scene))]
+            cents = [alpha_weighted_centroid(GaussianSet.concatenate(scene))]
         centroid = np.mean(cents, axis=0)
         est = estimate_lights(GaussianSet.concatenate(scene, label="scene"), centroid, k=k,
                               meters_per_unit=self.mpu)
@@ -428,7 +423,7 @@ class ShotProcessor:
         from .render import render_cube_faces
 
         t = time.perf_counter()
-        centre = _alpha_centroid(g)
+        centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)
         mask[span[0]:span[1]] = False
         rgb, alpha, _ = render_cube_faces(everything, centre, self.opts.probe_size, mask=mask)

@@ -50,13 +50,6 @@ class Receivers:
         merged = GaussianSet.concatenate(sets, label="receivers") if sets else GaussianSet.empty()
         return cls(merged, ranges)
 
-    def owner_mask(self, path: str) -> np.ndarray:
-        m = np.zeros(self.gaussians.count, bool)
-        if path in self.ranges:
-            a, b = self.ranges[path]
-            m[a:b] = True
-        return m
-
 
 def _bounding_sphere(ext: np.ndarray) -> tuple[np.ndarray, float]:
     """Centre and radius of the sphere around a (2, 3) box."""
