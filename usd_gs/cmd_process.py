@@ -66,8 +66,7 @@ def cmd_process(args) -> int:
     check_usd_output_path(out)
     opts = build_options(args)
     quiet = args.quiet or args.json
-    log = (lambda *a, **k: None) if quiet else print
-    proc = ShotProcessor(args.stage, out, opts, log=log)
+    proc = ShotProcessor(args.stage, out, opts)
     summary = proc.run(progress=not quiet and sys.stderr.isatty() or args.progress)
     if args.json:
         json.dump(summary.as_dict(), sys.stdout, indent=2)

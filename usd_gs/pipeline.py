@@ -143,11 +143,10 @@ def _safe_name(path: str) -> str:
 class ShotProcessor:
     """Runs the steps of the module docstring for one input stage."""
 
-    def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions, log=print):
+    def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions):
         self.input_path = str(input_path)
         self.output_path = str(output_path or default_output_path(input_path))
         self.opts = options.check()
-        self.log = log
         self.clock = _Clock()
         self.warnings: list[str] = []
 
@@ -244,7 +243,6 @@ class ShotProcessor:
     def _shot_setup(self):
         """What does not change from frame to frame: static receivers (concatenated once, with
         each prim's bounding sphere for brick-level culling) and static casters."""
-        from .gaussians import GaussianSet
         from .shot_shadows import Receivers, prim_spheres
 
         receivers = [r.path for r in self.roles if r.receives_shadows]
@@ -253,9 +251,8 @@ class ShotProcessor:
         self._static_recv = Receivers.build([(p, self.static[p]) for p in self._static_recv_paths])
         self._spheres = prim_spheres(self._static_recv, self.opts.dgsm.k_sigma)
         static_casters = [r.path for r in self.roles if not r.dynamic and r.casts_shadows]
-        self._scene_block = (GaussianSet.concatenate([self.static[p] for p in static_casters], label="scene casters")
-                             if static_casters else None)
         casters = Receivers.build([(p, self.static[p]) for p in static_casters])
+        self._scene_block = casters.gaussians if static_casters else None
         spheres = prim_spheres(casters, self.opts.dgsm.k_sigma)
         self._caster_ranges = [casters.ranges[p] for p in spheres]
         self._caster_centres = np.array([spheres[p][0] for p in spheres]).reshape(-1, 3)
