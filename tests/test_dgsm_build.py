@@ -7,7 +7,7 @@ import pytest
 from dgsm_testutil import random_occluders
 
 from numba_kernels import octahedral as oc
-from numba_kernels.dgsm_build import EPS_PAIR, build_point, roi_voxels, t_max_for
+from numba_kernels.dgsm_build import EPS_PAIR, TILE, _bin_tiles_chunked, build_point, roi_voxels, t_max_for
 from numba_kernels.dgsm_exact import optical_depth_point, transmittance_point
 from numba_kernels.dgsm_model import pack_gaussians
 
@@ -84,6 +84,37 @@ def test_tile_culling_error_within_k_sigma_bound():
     assert diff.max() > 1e-5  # the truncation is real at k = 2 ...
     wide = build_point(LIGHT, occ, dd, cov6, pts, 64, 16, k_sigma=8.0, use_tiles=True)
     np.testing.assert_allclose(wide.values, full.values, atol=1e-6)  # ... and vanishes at k = 8
+
+
+def _tile_lists_naive(fx, fy, rp, is_glob, w, active):
+    """Per tile, the occluders whose pixel box (centre +- radius) covers it, fold-wrapped."""
+    wt = w // TILE
+    lists = [[] for _ in range(wt * wt)]
+    for i in range(len(fx)):
+        if is_glob[i]:
+            continue
+        tiles = set()
+        for tx in range(math.floor((fx[i] - rp[i]) / TILE), math.floor((fx[i] + rp[i]) / TILE) + 1):
+            for ty in range(math.floor((fy[i] - rp[i]) / TILE), math.floor((fy[i] + rp[i]) / TILE) + 1):
+                a, b = oc.wrap_pixel(tx, ty, wt)
+                tiles.add(a * wt + b)
+        for t in sorted(tiles):
+            if active[t]:
+                lists[t].append(i)
+    return lists
+
+
+@pytest.mark.parametrize("n", [0, 5, 3000])
+def test_parallel_tile_lists_equal_naive_binning(n):
+    rng = np.random.default_rng(n)
+    w = 64
+    fx, fy = rng.uniform(-4, w + 4, n), rng.uniform(0, w, n)  # some boxes cross the fold
+    rp = rng.uniform(0, 12, n)
+    is_glob = rng.random(n) < 0.1
+    active = rng.random((w // TILE) ** 2) < 0.7
+    start, items = _bin_tiles_chunked(fx, fy, rp, is_glob, w, active)
+    got = [items[start[t]:start[t + 1]].tolist() for t in range(len(start) - 1)]
+    assert got == _tile_lists_naive(fx, fy, rp, is_glob, w, active)
 
 
 def test_bin_skip_equals_all_bins_and_saves_work():

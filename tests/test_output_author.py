@@ -1,0 +1,62 @@
+"""OutputAuthor: sparse time samples that read back exactly at every processed frame."""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Usd
+
+from usd_gs.output_author import LIGHT_SCALE, SH_COEFFS, TRANSMITTANCE, OutputAuthor
+
+
+def _sequence(n: int = 3):
+    """Per frame 1..10 the transmittance fed to the author: unaffected, a hold, a change,
+    another hold, back to unaffected, affected again."""
+    ones = np.ones(n, np.float32)
+    a = np.array([0.2, 1.0, 0.5], np.float32)[:n]
+    b = np.array([0.9, 0.1, 1.0], np.float32)[:n]
+    return {1: ones, 2: ones, 3: a, 4: a, 5: a, 6: b, 7: b, 8: ones, 9: ones, 10: a}
+
+
+def test_every_processed_frame_reads_back_exactly():
+    stage = Usd.Stage.CreateInMemory()
+    frames = list(range(1, 11))
+    author = OutputAuthor(stage, frames)
+    seq = _sequence()
+    sh_in = np.full((3, 1, 3), 0.25, np.float32)
+    for f in frames:
+        t = seq[f]
+        author.receiver("/P", f, t, sh_in * t[:, None, None], sh_in)
+        author.light_scale("/A", f, np.tile(seq[f][:, None], (1, 3)) * 2.0)
+    prim = stage.GetPrimAtPath("/P")
+    tr, sh = prim.GetAttribute(TRANSMITTANCE), prim.GetAttribute(SH_COEFFS)
+    ls = stage.GetPrimAtPath("/A").GetAttribute(LIGHT_SCALE)
+    for f in frames:
+        np.testing.assert_array_equal(np.asarray(tr.Get(f)), seq[f], err_msg=f"frame {f}")
+        np.testing.assert_array_equal(np.asarray(sh.Get(f))[:, 0], 0.25 * seq[f], err_msg=f"frame {f}")
+        np.testing.assert_array_equal(np.asarray(ls.Get(f))[:, 0], 2.0 * seq[f], err_msg=f"frame {f}")
+    # sparse: held frames 4, 5 and 9 are not authored; frame 2 carries the unaffected value
+    # before the first change, 5 and 7 end holds, frame 1 is never written (held before 2)
+    assert tr.GetTimeSamples() == [2.0, 3.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
+
+
+def test_strided_frames_hold_at_previous_processed_frame():
+    stage = Usd.Stage.CreateInMemory()
+    frames = [0, 4, 8, 12]
+    author = OutputAuthor(stage, frames)
+    a = np.array([0.5, 1.0], np.float32)
+    for f, t in zip(frames, [np.ones(2, np.float32), np.ones(2, np.float32), a, a], strict=True):
+        author.receiver("/P", f, t, np.zeros((2, 1, 3), np.float32), np.zeros((2, 1, 3), np.float32))
+    attr = stage.GetPrimAtPath("/P").GetAttribute(TRANSMITTANCE)
+    assert attr.GetTimeSamples() == [4.0, 8.0]
+    np.testing.assert_array_equal(np.asarray(attr.Get(0)), [1.0, 1.0])
+    np.testing.assert_array_equal(np.asarray(attr.Get(4)), [1.0, 1.0])
+    np.testing.assert_array_equal(np.asarray(attr.Get(12)), a)
+
+
+def test_untouched_prim_gets_no_samples():
+    stage = Usd.Stage.CreateInMemory()
+    author = OutputAuthor(stage, [1, 2, 3])
+    for f in (1, 2, 3):
+        author.receiver("/P", f, np.ones(4, np.float32), np.ones((4, 1, 3), np.float32), np.ones((4, 1, 3), np.float32))
+    assert not stage.GetPrimAtPath("/P")
+    assert author.samples_written == 0
