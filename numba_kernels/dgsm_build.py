@@ -45,10 +45,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .dgsm_model import check_points, check_vector, ray_params
+from .dgsm_model import Z_SATURATED, check_points, check_vector, ray_params
 from .octahedral import OCT_LIPSCHITZ, oct_decode, oct_encode, pixel_center_uv, uv_to_pixel_coords, wrap_pixel
 
-ZC = 6.0
+ZC = Z_SATURATED
 EPS_PAIR = 1e-10
 TILE = 8
 GLOBAL_THETA = 0.5
@@ -232,19 +232,21 @@ def _footprints(light, mu, cov, w, k_sigma, fxs, fys, rps, is_glob, cone):
             cone[i, 0], cone[i, 1], cone[i, 2], cone[i, 3] = vx / D, vy / D, vz / D, cth
 
 
-BIN_CHUNKS = 64
+BIN_CHUNKS = 64  # at most, and at least BIN_CHUNK_MIN occluders per chunk
+BIN_CHUNK_MIN = 4096
 
 
 @njit(cache=True, parallel=True, fastmath=False)
 def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
-    """CSR tile lists built in ``BIN_CHUNKS`` occluder chunks in parallel: each chunk counts
+    """CSR tile lists built in up to ``BIN_CHUNKS`` occluder chunks in parallel (at least
+    ``BIN_CHUNK_MIN`` occluders each, so small casters stay as cheap as a serial pass): each chunk counts
     its (tile, occluder) entries with its own stamp array, one prefix sum over (tile, chunk)
     gives every chunk its write offsets, and a second parallel pass fills them. Items of a
     tile come out in increasing occluder order, as a serial pass would give."""
     n = fxs.shape[0]
     wt = w // TILE
     nt = wt * wt
-    nc = min(BIN_CHUNKS, max(n, 1))
+    nc = min(BIN_CHUNKS, max(n // BIN_CHUNK_MIN, 1))
     step = (n + nc - 1) // nc
     counts = np.zeros((nc, nt), np.int64)
     dummy = np.zeros(1, np.int64)

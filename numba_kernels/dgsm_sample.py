@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from .dgsm_build import cone_hits
-from .dgsm_model import segment_depth
+from .dgsm_model import depth_from_light
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
 from .quaternion import quat_to_rotation
 
@@ -149,14 +149,14 @@ def _refine_groups(light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, til
                     continue
                 for a in range(n):
                     if hit[a]:
-                        tau[a] += segment_depth(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], 0.0, ts[a], dir_dep)
+                        tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
             for a in range(n):
                 for q in range(glob.shape[0]):
-                    tau[a] += segment_depth(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], 0.0, ts[a], dir_dep)
+                    tau[a] += depth_from_light(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
         else:
             for a in range(n):
                 for o in range(occ.shape[0]):
-                    tau[a] += segment_depth(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], 0.0, ts[a], dir_dep)
+                    tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
         for a in range(n):
             out[rows[r0 + a]] = math.exp(-tau[a])
 

@@ -241,3 +241,25 @@ def test_nan_inf_rejected_with_element_named():
         optical_depth_point(np.array([0, np.nan, 0]), pts[:4], occ, dd)
     with pytest.raises(ValueError, match="'light direction'"):
         optical_depth_directional(np.array([0, 0, 0.0]), pts[:4], occ, dd)
+
+
+def test_depth_from_light_shortcuts_match_mpmath():
+    """The refinement's saturated-erfc shortcuts (light before / inside / past the support,
+    receivers before, inside and past it) agree with the 50-digit closed form."""
+    from numba_kernels.dgsm_model import depth_from_light
+
+    rng = np.random.default_rng(21)
+    mu, q, s, a, occ, dd, _ = random_occluders(rng, 6, spread=0.3, log_s=(-3, -1))
+    light = np.array([0.0, 1.5, 0.0])
+    occ = np.vstack([occ, pack_gaussians([[0.0, 1.45, 0.0]], [[1, 0, 0, 0]], [[0.2, 0.1, 0.3]], [0.7])[0]])
+    worst = 0.0
+    for i in range(len(occ)):
+        c = occ[i, :3]
+        dist = float(np.linalg.norm(c - light))
+        d = (c - light) / max(dist, 1e-12)
+        for t1 in (0.0, 1e-7, 0.5 * dist, dist - 0.01, dist, dist + 0.01, dist + 1.0, 50.0):
+            ref = segment_depth_mpmath(light, d, 0.0, t1, occ[i], dd)
+            got = depth_from_light(occ, i, *light, *d, t1, dd)
+            assert np.isfinite(got) and got >= 0.0
+            worst = max(worst, abs(got - ref) / max(abs(ref), 1e-300) if ref > 1e-12 else abs(got - ref))
+    assert worst < 1e-9

@@ -268,6 +268,8 @@ class ShotProcessor:
             occluder_sphere,
             occluders_toward,
             prims_in_shadow,
+            receiver_points,
+            shared_transmittance,
             toward_mask,
         )
 
@@ -292,16 +294,18 @@ class ShotProcessor:
             hits = []
             td = np.ones(drecv.gaussians.count)
             for q in self._casters_dyn:
+                # one DGSM per caster and light, over the static and the dynamic receivers' voxels
                 hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma, bound[q])
+                part_s = None
                 if hit:
                     cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
-                    idx, val = caster_transmittance(sets[q], srecv, light, cfg, roi=self.opts.roi,
-                                                    prepared=packed[q], candidates=cand, sphere=bound[q])
-                    ts[idx] *= val
-                    hits.append(idx[val < 1.0])
-                idx, val = caster_transmittance(sets[q], drecv, light, cfg, exclude=q, roi=self.opts.roi,
-                                                prepared=packed[q], sphere=bound[q])
-                td[idx] *= val
+                    part_s = receiver_points(sets[q], srecv, light, cfg, roi=self.opts.roi, candidates=cand,
+                                             sphere=bound[q])
+                part_d = receiver_points(sets[q], drecv, light, cfg, exclude=q, roi=self.opts.roi, sphere=bound[q])
+                (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, packed[q])
+                ts[idx] *= val
+                hits.append(idx[val < 1.0])
+                td[idx_d] *= val_d
             if self._scene_block is not None and self._scene_block.count:
                 block = self._scene_block
                 keep = self._emitter_keep(light)

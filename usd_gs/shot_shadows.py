@@ -137,6 +137,67 @@ def _build(occluders: GaussianSet, prepared, light, points: np.ndarray, cfg: DGS
                                        cfg.use_roi, cfg.use_tile_culling, cfg.bin_skip)
 
 
+def receiver_points(occluders: GaussianSet, receivers: Receivers, light, cfg: DGSMConfig,
+                    exclude: str | None = None, roi: str = "cone", bias: float = 0.0,
+                    candidates: np.ndarray | None = None, sphere=None):
+    """The receivers ``occluders`` can shadow and their footprint sample points:
+    ``(idx (M,) int64 receiver indices, points (M*n, 3) float64, weights (n,))``, or None when
+    there are none. Arguments as :func:`caster_transmittance`."""
+    g = receivers.gaussians
+    if occluders.count == 0 or g.count == 0:
+        return None
+    cand = np.arange(g.count, dtype=np.int64) if candidates is None else np.asarray(candidates, np.int64)
+    if exclude is not None and exclude in receivers.ranges:
+        a, b = receivers.ranges[exclude]
+        cand = cand[(cand < a) | (cand >= b)]
+    if cand.size == 0:
+        return None
+    pos = g.positions[cand]
+    if roi == "all" or not cfg.use_roi:
+        idx = cand
+    elif roi == "box":
+        idx = cand[roi_indices(occluders, pos, cfg)]
+    else:
+        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma, sphere)]
+    if idx.size == 0:
+        return None
+    pts, w = footprint_samples(g, idx, cfg)
+    if bias > 0:
+        if light.kind == "directional":
+            toward = -np.asarray(light.direction, np.float64)
+            toward = np.broadcast_to(toward / np.linalg.norm(toward), pts.shape)
+        else:
+            toward = np.asarray(light.position, np.float64) - pts
+            toward = toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-12)
+        pts = pts + bias * toward
+    return idx, pts, w
+
+
+def shared_transmittance(occluders: GaussianSet, parts: list, light, cfg: DGSMConfig,
+                         prepared=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """One DGSM of ``occluders`` for several receiver sets: ``parts`` are
+    :func:`receiver_points` results (None entries allowed); the atlas covers the union of
+    their voxels (one culling pass and one accumulation instead of one per set) and each part
+    gets ``(idx, values)`` back as :func:`caster_transmittance` gives it (empty for None)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0))
+    live = [p for p in parts if p is not None]
+    if not live:
+        return [empty for _ in parts]
+    prepared = prepared if prepared is not None else prepare_occluders(occluders, cfg)
+    pts = np.ascontiguousarray(np.concatenate([p[1] for p in live]) if len(live) > 1 else live[0][1])
+    key, atlas = _build(occluders, prepared, light, pts, cfg)
+    out, start = [], 0
+    for p in parts:
+        if p is None:
+            out.append(empty)
+            continue
+        idx, ppts, w = p
+        sub = pts[start:start + len(ppts)]
+        start += len(ppts)
+        out.append((idx, sample_dgsm(DGSM(key, atlas, idx, sub, w, cfg, prepared=prepared))))
+    return out
+
+
 def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cfg: DGSMConfig,
                          exclude: str | None = None, roi: str = "cone", bias: float = 0.0,
                          prepared=None, candidates: np.ndarray | None = None,
@@ -151,37 +212,8 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
     ``cfg.use_roi = False`` gives). ``bias``: metres to move sample points toward the light
     (against self-contact shadowing). ``sphere``: :func:`occluder_sphere` if already known.
     """
-    g = receivers.gaussians
-    empty = (np.zeros(0, np.int64), np.zeros(0))
-    if occluders.count == 0 or g.count == 0:
-        return empty
-    cand = np.arange(g.count, dtype=np.int64) if candidates is None else np.asarray(candidates, np.int64)
-    if exclude is not None and exclude in receivers.ranges:
-        a, b = receivers.ranges[exclude]
-        cand = cand[(cand < a) | (cand >= b)]
-    if cand.size == 0:
-        return empty
-    pos = g.positions[cand]
-    if roi == "all" or not cfg.use_roi:
-        idx = cand
-    elif roi == "box":
-        idx = cand[roi_indices(occluders, pos, cfg)]
-    else:
-        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma, sphere)]
-    if idx.size == 0:
-        return empty
-    prepared = prepared if prepared is not None else prepare_occluders(occluders, cfg)
-    pts, w = footprint_samples(g, idx, cfg)
-    if bias > 0:
-        if light.kind == "directional":
-            toward = -np.asarray(light.direction, np.float64)
-            toward = np.broadcast_to(toward / np.linalg.norm(toward), pts.shape)
-        else:
-            toward = np.asarray(light.position, np.float64) - pts
-            toward = toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-12)
-        pts = pts + bias * toward
-    key, atlas = _build(occluders, prepared, light, np.ascontiguousarray(pts), cfg)
-    return idx, sample_dgsm(DGSM(key, atlas, idx, pts, w, cfg, prepared=prepared))
+    part = receiver_points(occluders, receivers, light, cfg, exclude, roi, bias, candidates, sphere)
+    return shared_transmittance(occluders, [part], light, cfg, prepared)[0]
 
 
 def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[np.ndarray, float]]:
