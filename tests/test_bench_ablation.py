@@ -60,7 +60,8 @@ def test_run_variants_and_report(sphere_frame, tmp_path):
     from usd_gs.bench_report import write_report
 
     base = DGSMConfig()
-    var = [Variant("default", "default", base), Variant("A sampling", "centre sample", replace(base, sampling="center")),
+    var = [Variant("default", "default", base),
+           Variant("A sampling", "centre sample", replace(base, sampling="center")),
            Variant("B mapping", "simple", replace(base, mapping="simple")),
            Variant("C atlas", "cube", replace(base, refine_contrast=None), atlas="cube"),
            Variant("diagnostics", "oracle", base, oracle=True)]
