@@ -27,6 +27,7 @@ import numpy as np
 from plyfile import PlyData
 
 from numba_kernels import cubemap, dgsm_build, dgsm_exact, dgsm_sample
+from usd_gs.bench_ablation import timed
 from usd_gs.gaussians import GaussianSet
 from usd_gs.shadows import DGSMConfig, build_dgsm, footprint_samples, prepare_occluders, sample_dgsm
 
@@ -74,19 +75,6 @@ def make_room(n: int = 1_000_000, size: float = 20.0, wall_h: float = 3.0, seed:
     q[:n_floor] = [half, -half, 0, 0]
     q[n_floor:] = np.where((wall < 2)[:, None], [half, 0, half, 0], [1.0, 0, 0, 0])
     return GaussianSet(pos, q, scales, np.full(n, 0.9), np.zeros((n, 1, 3)), label="room")
-
-
-def timed(fn, *a, repeat=3, **kw):
-    """(best wall s, process CPU s of that run, result)."""
-    best, cpu, out = np.inf, np.inf, None
-    for _ in range(repeat):
-        c = time.process_time()
-        t = time.perf_counter()
-        out = fn(*a, **kw)
-        el = time.perf_counter() - t
-        if el < best:
-            best, cpu = el, time.process_time() - c
-    return best, cpu, out
 
 
 def run_config(avatar, room, light, cfg, prepared, repeat=3):
