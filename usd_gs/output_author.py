@@ -9,10 +9,13 @@ Per probe: ``/UsdGs/Probes/<prim name>`` (Xform, translate time-sampled) with
   ``usdgs:probe:shCoefficients`` float3[] (3DGS basis) and ``usdgs:probe:texture`` asset.
 
 Everything is time-sampled at the processed frames where it is affected. A value that does
-not change from one processed frame to the next is not authored again (USD holds the last
-sample). A prim is touched only once it is affected; its first sample then also goes to
-the first processed frame (with the unaffected value) so earlier frames do not pick up a
-later sample. Bulk values go through ``Vt.*Array.FromNumpy`` inside ``Sdf.ChangeBlock``.
+not change from one processed frame to the next is not authored again. USD interpolates
+float arrays *linearly* between two time samples, so when a value changes after being held
+over skipped frames, the held value is authored once more at the previous processed frame:
+every processed frame then reads back exactly the value computed for it (before the first
+sample and after the last one USD holds the end values). A prim is touched only once it is
+affected; its first sample is then preceded by the unaffected value at the previous
+processed frame. Bulk values go through ``Vt.*Array.FromNumpy`` inside ``Sdf.ChangeBlock``.
 """
 
 from __future__ import annotations
@@ -30,10 +33,11 @@ PROBE_TEXTURE = "usdgs:probe:texture"
 class _Track:
     """Last authored value of one attribute, for change detection."""
 
-    __slots__ = ("last", "started", "clean")
+    __slots__ = ("last", "last_frame", "started", "clean")
 
     def __init__(self):
         self.last = None
+        self.last_frame = None  # frame of the last authored sample
         self.started = False
         self.clean = True  # the last value (or the input's, before anything) is the unaffected one
 
@@ -41,9 +45,13 @@ class _Track:
 class OutputAuthor:
     """Writes per-frame results as time samples into ``stage`` (the output layer's stage)."""
 
-    def __init__(self, stage, first_frame: float):
+    def __init__(self, stage, frames):
+        """``frames``: the processed frames in order (time codes); results must be passed in
+        that order."""
         self.stage = stage
-        self.first_frame = float(first_frame)
+        frames = [float(f) for f in frames]
+        self.first_frame = frames[0]
+        self._previous = dict(zip(frames[1:], frames[:-1], strict=True))
         self._tracks: dict[tuple[str, str], _Track] = {}
         self.samples_written = 0
 
@@ -73,13 +81,16 @@ class OutputAuthor:
         from pxr import Sdf
 
         attr = self._attr(prim_path, name, type_name, primvar, element_size)
+        prev = self._previous.get(float(frame))
+        held = track.last if track.started else (None if unaffected is None else np.ascontiguousarray(unaffected))
         with Sdf.ChangeBlock():
-            if not track.started and unaffected is not None and frame != self.first_frame:
-                attr.Set(vt_cls.FromNumpy(np.ascontiguousarray(unaffected)), self.first_frame)
+            if held is not None and prev is not None and track.last_frame != prev:
+                attr.Set(vt_cls.FromNumpy(held), prev)  # end of the hold: no interpolation into it
                 self.samples_written += 1
             attr.Set(vt_cls.FromNumpy(value), frame)
         track.started = True
         track.last = value.copy()
+        track.last_frame = float(frame)
         self.samples_written += 1
         return True
 

@@ -474,7 +474,7 @@ class ShotProcessor:
         probe_dir.mkdir(parents=True)
         try:
             with OutputLayer.create(self.input_path, self.output_path) as out:
-                author = OutputAuthor(out.stage, self.frames[0])
+                author = OutputAuthor(out.stage, self.frames)
                 frames = self.frames
                 bar = None
                 if progress:
