@@ -58,7 +58,8 @@ def process_chunked(args, out: str, opts) -> int:
 
 
 def cmd_lights(args) -> int:
-    from .light_prims import write_estimated_lights
+    from .farm_run import SHOT_FIRST_FRAME
+    from .light_prims import LIGHTS_ROOT, write_estimated_lights
     from .output_layer import OutputLayer
     from .pipeline import ProcessOptions, ShotProcessor
     from .stage_open import check_usd_output_path
@@ -75,6 +76,8 @@ def cmd_lights(args) -> int:
         raise UserError(f"{args.stage}: no lights could be estimated ({'; '.join(proc.warnings) or 'no scene'})")
     with OutputLayer.create(args.stage, args.output) as out:
         write_estimated_lights(out.stage, lights)
+        # the shot's first frame: chunk tasks anchor the avatars' normals there (usd_gs.farm_run)
+        out.stage.GetPrimAtPath(LIGHTS_ROOT).SetCustomDataByKey(SHOT_FIRST_FRAME, float(proc.frames[0]))
     if not args.quiet:
         _print_lights(lights)
         print(f"wrote {args.output} (sublayers {args.stage}); run the chunks on it with --lights stage")

@@ -126,15 +126,17 @@ def _canon(value):
     return value
 
 
-def options_hash(options, lights) -> str:
+def options_hash(options, lights, anchor: float | None = None) -> str:
     """SHA-256 of every processing option except ``frames`` (and the input-derived up axis),
-    the shot-level ``lights`` (None: per frame from the stage) and the package version."""
+    the shot-level ``lights`` (None: per frame from the stage), the normals ``anchor`` frame
+    and the package version."""
     from . import __version__
 
     opts = _canon(options)
     opts.pop("frames", None)
     opts.get("dgsm", {}).pop("up_axis", None)
-    text = json.dumps({"options": opts, "lights": _canon(lights), "version": __version__}, sort_keys=True)
+    text = json.dumps({"options": opts, "lights": _canon(lights), "anchor": _canon(anchor), "version": __version__},
+                      sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 

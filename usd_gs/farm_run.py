@@ -21,6 +21,20 @@ from .farm_chunks import chunk_is_done, clean_folder, input_hash, options_hash, 
 from .farm_executor import ChunkTask, make_backend, run_chunk, run_tasks
 
 
+SHOT_FIRST_FRAME = "usdgs:shotFirstFrame"  # customData on /UsdGs/Lights written by ``usdgs lights``
+
+
+def anchor_frame(stage, frames: list[float]) -> float:
+    """The frame where a chunk estimates the avatars' normals (as the whole-shot run does at
+    its first frame): the shot's first frame recorded by ``usdgs lights`` in the lights layer,
+    else the first frame of this run (farm tasks must run on the lights layer to agree)."""
+    from .light_prims import LIGHTS_ROOT
+
+    prim = stage.GetPrimAtPath(LIGHTS_ROOT)
+    value = prim.GetCustomDataByKey(SHOT_FIRST_FRAME) if prim else None
+    return float(value) if value is not None else float(frames[0])
+
+
 def default_clips_dir(output: str) -> str:
     """``<output stem>_clips/`` beside the output."""
     p = Path(output)
@@ -68,7 +82,8 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
     shot = ShotProcessor(input_path, output, copy.deepcopy(options))
     lights = shot.shot_lights()
     frames = shot.frames
-    o_hash, i_hash = options_hash(opts, lights), input_hash(shot.stage)
+    anchor = anchor_frame(shot.stage, frames)
+    o_hash, i_hash = options_hash(opts, lights, anchor), input_hash(shot.stage)
     del shot
     chunks = plan_chunks(frames, chunk_size)
     t = time.perf_counter()
@@ -77,7 +92,7 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
     keep = {c.name for c in done}
     removed = clean_folder(folder, chunks, keep, o_hash, i_hash)
     todo = [c for c in chunks if c.name not in keep]
-    tasks = [ChunkTask(str(Path(input_path).absolute()), str(folder), c, opts, lights, frames[0], o_hash, i_hash)
+    tasks = [ChunkTask(str(Path(input_path).absolute()), str(folder), c, opts, lights, anchor, o_hash, i_hash)
              for c in todo]
     if report and done:
         report(f"{len(done)} of {len(chunks)} chunk(s) already finished, skipped")
