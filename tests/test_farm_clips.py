@@ -136,8 +136,8 @@ def test_retries_then_failure_names_the_chunk(shot, tmp_path):
     path, single = shot
     lines = []
     out = tmp_path / "retry.usdc"
-    s = run_farm(str(path), str(out), ProcessOptions(frames="1-4"), 2, str(tmp_path / "c"), report=lines.append,
-                 fn=_flaky)
+    run_farm(str(path), str(out), ProcessOptions(frames="1-4"), 2, str(tmp_path / "c"), report=lines.append,
+             fn=_flaky)
     assert any("chunk 2/2 (frames 3-4) failed (attempt 1/3): OSError: simulated lost worker; retrying" in ln
                for ln in lines)
     assert (tmp_path / "c" / "attempts_chunk_0003_0004").read_text() == "2"

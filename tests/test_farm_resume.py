@@ -82,17 +82,16 @@ def test_sigkill_then_resume(copied, tmp_path):
     assert stage_differences(single, out, FRAMES) == []
 
 
-def test_stale_chunks_are_recomputed(copied, tmp_path):
+def test_stale_chunks_are_recomputed(copied, tmp_path, capsys):
     stage, _ = copied
     clips = tmp_path / "clips"
     base = ["process", str(stage), "-o", str(tmp_path / "o.usdc"), "--frames", "1-2", "--chunk-size", "1",
             "--clips-dir", str(clips), "--json"]
 
     def run(*extra):
-        proc = _run(base + list(extra))
-        stdout, stderr = proc.communicate(timeout=180)
-        assert proc.returncode == 0, stderr
-        return json.loads(stdout)["chunks"]
+        capsys.readouterr()
+        assert main(base + list(extra)) == 0
+        return json.loads(capsys.readouterr().out)["chunks"]
 
     assert len(run()["computed"]) == 2
     assert run()["skipped"] == ["chunk_0001_0001", "chunk_0002_0002"]

@@ -20,7 +20,6 @@ from pathlib import Path
 from .farm_chunks import chunk_is_done, clean_folder, input_hash, options_hash, plan_chunks
 from .farm_executor import ChunkTask, make_backend, run_chunk, run_tasks
 
-
 SHOT_FIRST_FRAME = "usdgs:shotFirstFrame"  # customData on /UsdGs/Lights written by ``usdgs lights``
 
 
