@@ -74,7 +74,8 @@ def main() -> int:
         fig["runs"] = runs
         fig["speedup_chunks"] = round(runs[2]["frames_per_s_chunks"] / runs[1]["frames_per_s_chunks"], 3)
         fig["speedup_end_to_end"] = round(runs[2]["frames_per_s_end_to_end"] / runs[1]["frames_per_s_end_to_end"], 3)
-        print(f"2 vs 1 worker: {fig['speedup_chunks']:.2f}x (chunk phase), {fig['speedup_end_to_end']:.2f}x (end to end)")
+        print(f"2 vs 1 worker: {fig['speedup_chunks']:.2f}x (chunk phase), "
+              f"{fig['speedup_end_to_end']:.2f}x (end to end)")
 
         # one chunk as a farm task: fresh process, warm numba cache
         first = float(a.frames.split("-")[0])
