@@ -41,7 +41,7 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
 
 
 # Modules that define subcommands; each has ``REGISTRARS``: functions (subparsers, formatter).
-COMMAND_MODULES = ("cmd_io", "cmd_demo", "cmd_process", "cmd_render", "cmd_eval", "cmd_bench")
+COMMAND_MODULES = ("cmd_io", "cmd_demo", "cmd_process", "cmd_render", "cmd_farm", "cmd_eval", "cmd_bench")
 
 
 def build_parser() -> argparse.ArgumentParser:

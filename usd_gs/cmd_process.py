@@ -66,6 +66,10 @@ def cmd_process(args) -> int:
     check_usd_output_path(out)
     opts = build_options(args)
     quiet = args.quiet or args.json
+    if args.chunk_size or args.workers or args.scheduler or args.clips_dir:
+        from .cmd_farm import process_chunked
+
+        return process_chunked(args, out, opts)
     proc = ShotProcessor(args.stage, out, opts)
     summary = proc.run(progress=not quiet and sys.stderr.isatty() or args.progress)
     if args.json:
@@ -126,6 +130,17 @@ def register_process(sub, formatter):
     p.add_argument("--no-tile-culling", action="store_true", help="disable light-space tile culling (slow)")
     p.add_argument("--config", help="JSON file with options (names as above with '_')")
     p.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
+    f = p.add_argument_group("farm runs (frame chunks stitched as value clips; see README 'Farm runs')")
+    f.add_argument("--chunk-size", type=int, metavar="N",
+                   help="frames per chunk: one layer per chunk in --clips-dir, OUT stitches them (default: all "
+                        "frames in one chunk when only --clips-dir/--workers/--scheduler is given)")
+    f.add_argument("--clips-dir", metavar="DIR", help="chunk layers and their manifest entries (default: "
+                                                      "<output stem>_clips/ beside the output); re-running skips "
+                                                      "finished chunks")
+    f.add_argument("--workers", type=int, metavar="N", help="run the chunks in N local processes")
+    f.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="submit the chunks to a running dask.distributed scheduler (pip install 'usd-gs[farm]')")
+    f.add_argument("--retries", type=int, default=2, help="resubmit a failed chunk this many times")
     g = p.add_mutually_exclusive_group()
     g.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     g.add_argument("--json", action="store_true", help="print a machine-readable summary")

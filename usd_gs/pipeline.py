@@ -143,10 +143,16 @@ def _safe_name(path: str) -> str:
 class ShotProcessor:
     """Runs the steps of the module docstring for one input stage."""
 
-    def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions):
+    def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions,
+                 lights: list[ShotLight] | None = None, anchor_frame: float | None = None):
+        """``lights``: shot-level lights to use at every frame (a chunk of a farm run, see
+        :meth:`shot_lights`); ``anchor_frame``: the shot's first frame when this run is a chunk
+        starting later (normals are estimated there, as in the whole-shot run)."""
         self.input_path = str(input_path)
         self.output_path = str(output_path or default_output_path(input_path))
         self.opts = options.check()
+        self.preset_lights = lights
+        self.anchor_frame = anchor_frame
         self.clock = _Clock()
         self.warnings: list[str] = []
 
@@ -215,6 +221,8 @@ class ShotProcessor:
     def _lights(self, frame: float) -> list[ShotLight]:
         from pxr import Usd
 
+        if self.preset_lights is not None:
+            return self.preset_lights
         t0 = time.perf_counter()
         mode = self.opts.lights
         if mode in ("auto", "stage"):
@@ -238,6 +246,21 @@ class ShotProcessor:
             lights = self._shot_lights
         self.clock.add("lights", t0)
         return lights
+
+    def shot_lights(self) -> list[ShotLight] | None:
+        """The shot-level step of a chunked run: opens the input and returns the lights estimated
+        once over the whole frame range (what every chunk must use), or None where each frame
+        reads the stage's UsdLux lights or re-estimates (``lights_per_frame``). Sets ``frames``."""
+        from pxr import UsdGeom
+
+        self._open()
+        self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
+        self._read_static()
+        self._shot_lights = None
+        if self.opts.lights_per_frame:
+            return None
+        lights = self._lights(self.frames[0])
+        return lights if not lights or lights[0].source == "estimated" else None
 
     # ------------------------------------------------------------------ per frame
     def _shot_setup(self):
@@ -432,6 +455,10 @@ class ShotProcessor:
         probe = fit_probe(rgb, degree=self.opts.probe_degree, alpha=alpha, center=centre)
         t = self.clock.add("probe_fit", t)
         local = self._local_normals.get(path)
+        if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
+            a = self._read(path, self.anchor_frame)  # a chunk: normals from the shot's first frame
+            local = normals_to_local(a.orientations, gaussian_normals(a.positions, a.orientations, a.scales,
+                                                                      a.opacities))
         if local is None or local.shape[0] != g.count:
             n = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
             local = normals_to_local(g.orientations, n)
