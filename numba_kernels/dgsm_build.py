@@ -467,6 +467,21 @@ def covariance6(cov) -> np.ndarray:
     return np.ascontiguousarray(np.stack([c[:, 0, 0], c[:, 0, 1], c[:, 0, 2], c[:, 1, 1], c[:, 1, 2], c[:, 2, 2]], 1))
 
 
+def accumulate_pixels(light, occ, dir_dep: int, pixels, width: int, K: int, t_max: float, kmin: int, kmax: int,
+                      tiles, use_tiles: bool, bin_skip: bool, out, pairs, erfs) -> None:
+    """Transmittance of the atlas pixels ``pixels`` (sorted flat ids) over bins ``kmin..kmax``
+    into ``out`` (len(pixels), kmax - kmin + 1) float32, with per-pixel counters ``pairs`` and
+    ``erfs`` (int64): the accumulation step of :func:`build_point`. ``tiles``:
+    ``bin_tiles``' lists (every tile the pixels lie in must have been active), or with
+    ``use_tiles=False`` lists whose ``glob`` holds every occluder."""
+    start, items, glob, cone = tiles
+    gs, rows, gt = _groups(pixels, width, use_tiles)
+    pdirs = np.empty((len(pixels), 3))
+    _pixel_dirs(pixels, width, pdirs)
+    _accumulate_point(light, np.ascontiguousarray(occ, dtype=np.float64), int(dir_dep), pdirs, K, float(t_max), kmin,
+                      kmax, gs, rows, gt, start, items, glob, cone, bool(bin_skip), out, pairs, erfs)
+
+
 def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K: int = 64,
                 t_max: float | None = None, k_sigma: float = 3.0, use_roi: bool = True,
                 use_tiles: bool = True, bin_skip: bool = True) -> Atlas:
@@ -505,10 +520,7 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
             items = np.zeros(0, np.int64)
             glob = np.arange(occ.shape[0], dtype=np.int64)
             cone = np.zeros((0, 4))
-        gs, rows, gt = _groups(pixels, width, use_tiles)
-        pdirs = np.empty((len(pixels), 3))
-        _pixel_dirs(pixels, width, pdirs)
-        _accumulate_point(light, occ, int(dir_dep), pdirs, K, float(t_max), kmin, kmax, gs, rows, gt,
-                          start, items, glob, cone, bool(bin_skip), out, pairs, erfs)
+        accumulate_pixels(light, occ, dir_dep, pixels, width, K, t_max, kmin, kmax, (start, items, glob, cone),
+                          use_tiles, bin_skip, out, pairs, erfs)
     tiles = (start, items, glob, cone) if (use_tiles and len(pixels) and nk and occ.shape[0]) else None
     return Atlas(width, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), tiles)

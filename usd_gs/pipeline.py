@@ -329,7 +329,13 @@ class ShotProcessor:
                 ts[idx] *= val
                 hits.append(idx[val < 1.0])
                 td[idx_d] *= val_d
-            if self._scene_block is not None and self._scene_block.count:
+            if self._scene_block is not None and self._scene_block.count and light.kind == "point":
+                # the static scene's atlas, built once per shot and light, voxel columns on demand
+                part = receiver_points(self._scene_block, drecv, light, self._centre_cfg, roi="all",
+                                       bias=self.opts.contact_bias / self.mpu)
+                if part is not None:
+                    td[part[0]] *= self._static_atlas(light).transmittance(part[1])
+            elif self._scene_block is not None and self._scene_block.count:
                 block = self._scene_block
                 keep = self._emitter_keep(light)
                 for p in self._dyn_recv_paths:
@@ -423,6 +429,17 @@ class ShotProcessor:
             buf.sh[a:b] = 0.0
             buf.sh[a:b, : g.sh.shape[1]] = g.sh[:, :k]
         return buf, spans
+
+    def _static_atlas(self, light):
+        """The static casters' shot-long DGSM for a point light (``usd_gs.static_shadows``),
+        without the light's own emitter Gaussians (:meth:`_emitter_keep`)."""
+        from .static_shadows import StaticSceneAtlas
+
+        key = ("atlas", tuple(np.round(light.position, 6)))
+        if key not in self._scene_packs:
+            self._scene_packs[key] = StaticSceneAtlas(self._scene_block.subset(self._emitter_keep(light)),
+                                                      light.position, self._centre_cfg)
+        return self._scene_packs[key]
 
     def _emitter_keep(self, light) -> np.ndarray:
         """(N_static_casters,) bool, computed once per shot and light: False for the scene
