@@ -196,3 +196,12 @@ def test_lighting_consistency_for_stage(tmp_path):
     assert s["delta"]["paa_y"] == pytest.approx(s["relit"]["paa_y"] - s["orig"]["paa_y"])
     with pytest.raises(UserError, match="no sublayer"):
         lighting_consistency_for_stage(tmp_path / "shot.usda")
+
+
+def test_sh_rank_counts_the_coefficients_the_normals_determine():
+    from usd_gs.metrics_lighting import sh_rank
+
+    assert sh_rank(radial(sphere(0.5, 2000))) == 16
+    assert sh_rank(np.tile([0.0, 1.0, 0.0], (500, 1))) == 1  # a floor
+    two = np.repeat([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], 300, axis=0)  # floor and one wall
+    assert sh_rank(two) == 2

@@ -31,8 +31,8 @@ Conventions (each choice the paper leaves open is fixed here):
   explains luminance variation with orientation, the scales absorb what it cannot), solved
   by alternating a Huber least-squares step on ``c`` (``scipy.optimize.least_squares``,
   ``loss='huber'``, ``f_scale = 1.345 * 1.4826 * MAD``) with the closed-form, IRLS-weighted
-  step on ``alpha`` (clipped at 0), with a small ridge on ``c_lm, l >= 1`` (normals that
-  cover only part of the sphere, e.g. a floor and two walls, leave the rest at 0) and 5 %
+  step on ``alpha`` (clipped at 0), with a ridge :data:`RIDGE` on ``c_lm, l >= 1`` (normals
+  that cover only part of the sphere, e.g. a floor and two walls, leave the rest at 0) and 5 %
   trimming (the Gaussians with the largest absolute residuals do not enter the next
   ``c`` step). ``alpha_prior=inf`` is one common scale (plain robust regression).
 - **PAA-Y** ``= ||c_avatar - c_scene||_1`` with both normalised as above.
@@ -64,6 +64,10 @@ SH_ORDER = 3
 HUBER_K = 1.345
 TRIM = 0.05
 METRICS = ("paa_y", "apf_y", "ncm_ab")
+RIDGE = 1e-2
+"""Ridge on ``c_lm, l >= 1`` relative to the data (a coefficient of 1 costs ``RIDGE`` x the summed
+squared luminance): with 1e-3 a floor-only neighbourhood overfits the few-degree noise of its
+pseudo-normals (``||c||_1`` ~ 4); with 1e-2 it comes out flat, as it should."""
 
 
 # ----------------------------------------------------------------------------- colours
@@ -144,6 +148,16 @@ def sh_basis(normals) -> np.ndarray:
     return eval_basis_rh_numpy(np.asarray(normals, np.float64), SH_ORDER)
 
 
+def sh_rank(normals, rel: float = 1e-2) -> int:
+    """How many of the 16 SH coefficients the normals determine: eigenvalues of the Gram matrix
+    ``B^T B / N`` above ``rel`` x ``1 / (4 pi)`` (the value for normals spread over the sphere).
+    A floor alone gives 1; below 16, PAA-Y and APF-Y compare lighting partly unseen by the scene."""
+    b = sh_basis(normals)
+    if b.shape[0] == 0:
+        return 0
+    return int(np.sum(np.linalg.eigvalsh(b.T @ b / b.shape[0]) > rel / (4.0 * np.pi)))
+
+
 def irradiance(normals, coeffs) -> np.ndarray:
     """``E(n; c)`` (N,) for unit normals (N, 3) and RH coefficients (16,)."""
     return sh_basis(normals) @ np.asarray(coeffs, np.float64)
@@ -187,7 +201,7 @@ class FactorizationFit:
     residual: np.ndarray
 
 
-def fit_factorization(y, normals, alpha_prior: float = 1.0, ridge: float = 1e-3, trim: float = TRIM,
+def fit_factorization(y, normals, alpha_prior: float = 1.0, ridge: float = RIDGE, trim: float = TRIM,
                       n_iter: int = 8, label: str = "Gaussians") -> FactorizationFit:
     """Robust alternating fit of ``Y_i ~ alpha_i E(n_i; c)``, ``alpha_i >= 0`` (module docstring).
 
@@ -297,6 +311,7 @@ class SceneLighting:
     rgb: np.ndarray  # (M, 3)
     normals: np.ndarray  # (M, 3)
     fit: FactorizationFit
+    sh_rank: int  # :func:`sh_rank` of the neighbourhood's normals (16: PAA-Y fully determined)
 
 
 def scene_lighting(scene: GaussianSet, centre, radius_m: float = 1.5, meters_per_unit: float = 1.0,
@@ -316,7 +331,7 @@ def scene_lighting(scene: GaussianSet, centre, radius_m: float = 1.5, meters_per
     rgb = gaussian_colors(nb, view_from)
     normals = pseudo_normals(nb, normal_radius, toward=centre)
     fit = fit_factorization(luminance(rgb), normals, alpha_prior, label=f"{scene.label} neighbourhood")
-    return SceneLighting(centre, index, rgb, normals, fit)
+    return SceneLighting(centre, index, rgb, normals, fit, sh_rank(normals))
 
 
 def avatar_metrics(rgb_avatar, normals_avatar, scene: SceneLighting, alpha_prior: float = 1.0,
@@ -342,7 +357,8 @@ def lighting_consistency(orig: GaussianSet, relit: GaussianSet, scene: GaussianS
     scene: the scene Gaussians (world space). ``avatar_normals`` (N, 3) overrides the pseudo-
     normals of the avatar. Returns ``{'orig': {...}, 'relit': {...}, 'delta': {m: relit - orig},
     'improvement': {m: orig - relit}, 'c_scene' (16,), 'centre' (3,), 'n_avatar', 'n_scene'}``
-    with ``m`` in :data:`METRICS`; lower metric values are better.
+    with ``m`` in :data:`METRICS`, and ``'scene_sh_rank'`` (:func:`sh_rank`); lower metric values
+    are better.
     """
     from .lights import alpha_weighted_centroid
 
@@ -355,7 +371,8 @@ def lighting_consistency(orig: GaussianSet, relit: GaussianSet, scene: GaussianS
                              label=f"{g.label} ({k})") for k, g in (("orig", orig), ("relit", relit))}
     out["delta"] = {m: out["relit"][m] - out["orig"][m] for m in METRICS}
     out["improvement"] = {m: out["orig"][m] - out["relit"][m] for m in METRICS}
-    out.update(c_scene=sc.fit.coeffs, centre=centre, n_avatar=int(orig.count), n_scene=int(sc.index.size))
+    out.update(c_scene=sc.fit.coeffs, centre=centre, n_avatar=int(orig.count), n_scene=int(sc.index.size),
+               scene_sh_rank=sc.sh_rank)
     return out
 
 
@@ -373,4 +390,4 @@ from .metrics_lighting_stage import lighting_consistency_for_stage  # noqa: E402
 __all__ = ["METRICS", "FactorizationFit", "SceneLighting", "apf_y", "avatar_metrics", "emd_2d", "fit_affine",
            "fit_factorization", "gaussian_colors", "irradiance", "lighting_consistency",
            "lighting_consistency_for_stage", "ncm_ab", "paa_y", "pseudo_normals", "scene_lighting", "sh_basis",
-           "summarize", "weighted_local_pca"]
+           "sh_rank", "summarize", "weighted_local_pca"]
