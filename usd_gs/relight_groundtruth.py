@@ -115,7 +115,11 @@ def _scene_mesh(props: bool = True):
 
 
 def _intersector(mesh):
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
+    try:
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+    except ImportError as exc:
+        raise UserError("the relighting ground truth needs Embree ray casts: pip install 'usd-gs[eval]' "
+                        f"(embreex) ({exc})") from None
 
     return RayMeshIntersector(mesh)
 
