@@ -55,7 +55,6 @@ def sphere_frame():
 
 
 def test_run_variants_and_report(sphere_frame, tmp_path):
-    pytest.importorskip("matplotlib")
     from usd_gs.bench_ablation import culling_timings
     from usd_gs.bench_report import write_report
 

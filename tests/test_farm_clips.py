@@ -95,7 +95,7 @@ def test_chunk_layers_and_topology(shot, tmp_path):
 def test_local_processes_and_dask_cluster(shot, tmp_path):
     """Two local worker processes, then a LocalCluster with two in-process workers: both
     stitched results equal the single run."""
-    distributed = pytest.importorskip("distributed")
+    import distributed
     path, single = shot
     out = tmp_path / "procs.usdc"
     assert main(["process", str(path), "-o", str(out), "--frames", "1-4", "--chunk-size", "2", "--workers", "2",
