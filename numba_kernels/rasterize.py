@@ -145,7 +145,9 @@ def _rotation_scale(qw, qx, qy, qz, sx, sy, sz):
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 def _project_full(x, y, z, rs, vr, intr, clamp, width, height, dilation, qcut):
-    """EWA projection. Returns (ok, u, v, conic_a, conic_b, conic_c, j0, j1, i0, i1)."""
+    """EWA projection. Returns (ok, u, v, conic_a, conic_b, conic_c, j0, j1, i0, i1, comp) with
+    ``comp = sqrt(det(Sigma2 - dilation I) / det(Sigma2))``, the opacity factor that keeps a
+    dilated splat's integral equal to the undilated one (antialiased mode)."""
     j00, j02, j11, j12 = _jacobian(x, y, z, intr, clamp)
     # M = J V (2x3)
     m00 = j00 * vr[0, 0] + j02 * vr[2, 0]
@@ -166,15 +168,17 @@ def _project_full(x, y, z, rs, vr, intr, clamp, width, height, dilation, qcut):
     cc = a10 * a10 + a11 * a11 + a12 * a12 + dilation
     det = ca * cc - cb * cb
     if not (det > 0.0 and math.isfinite(det)):
-        return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0, -1, 0, -1)
+        return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0, -1, 0, -1, 0.0)
     u = intr[0] * x / z + intr[2]
     v = intr[1] * y / z + intr[3]
     j0, j1 = _pixel_range(u, math.sqrt(qcut * ca), width)
     i0, i1 = _pixel_range(v, math.sqrt(qcut * cc), height)
     if j1 < j0 or i1 < i0:
-        return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0, -1, 0, -1)
+        return (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0, -1, 0, -1, 0.0)
     idet = 1.0 / det
-    return (True, u, v, cc * idet, -cb * idet, ca * idet, j0, j1, i0, i1)
+    det0 = (ca - dilation) * (cc - dilation) - cb * cb
+    comp = math.sqrt(det0 * idet) if det0 > 0.0 else 0.0
+    return (True, u, v, cc * idet, -cb * idet, ca * idet, j0, j1, i0, i1, comp)
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -296,7 +300,7 @@ def _visible_offsets(vis, off):
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp, cam_pos,
-                    width, height, dilation, rec, info, depth32):
+                    width, height, dilation, antialiased, rec, info, depth32):
     """Entries of Gaussian g for the cameras in ``bits`` (see ``_write_entries``)."""
     ncam = view_rot.shape[0]
     e = off[g]
@@ -340,7 +344,7 @@ def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_
         rec[e, _CA] = res[3]
         rec[e, _CB] = res[4]
         rec[e, _CC] = res[5]
-        rec[e, _OP] = op
+        rec[e, _OP] = op * res[10] if antialiased else op
         rec[e, _R] = col[0]
         rec[e, _G] = col[1]
         rec[e, _B] = col[2]
@@ -361,7 +365,7 @@ def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_
 
 @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
 def _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
-                   cam_pos, width, height, dilation, rec, info, depth32):
+                   cam_pos, width, height, dilation, antialiased, rec, info, depth32):
     """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order.
 
     Fills rec (M,16) float32 records (rows of rejected entries are left unset: never read),
@@ -374,7 +378,7 @@ def _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, 
         if bits == 0:
             continue
         _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp,
-                        cam_pos, width, height, dilation, rec, info, depth32)
+                        cam_pos, width, height, dilation, antialiased, rec, info, depth32)
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -617,7 +621,8 @@ def _tile_order(ntiles: int) -> np.ndarray:
 
 
 def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
-              width, height, include=None, dilation=DEFAULT_DILATION, guard=DEFAULT_GUARD, tile=TILE):
+              width, height, include=None, dilation=DEFAULT_DILATION, guard=DEFAULT_GUARD, tile=TILE,
+              antialiased=False):
     """Render N Gaussians into K cameras of equal size (see module docstring).
 
     positions (N,3), quats (N,4) (w,x,y,z), scales (N,3) linear sigma, opacities (N,) linear,
@@ -625,7 +630,10 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     view_t (K,3) world -> view (x right, y down, z depth), intr (K,4) = fx, fy, cx, cy in
     pixels, nearfar (K,2), cam_pos (K,3) world camera centres (for the SH direction); K <= 63.
     include: optional (N,) bool mask of the Gaussians to render. dilation: px^2 added to the 2D
-    covariance diagonal (3DGS: 0.3); guard: Jacobian clamp factor (3DGS: 1.3).
+    covariance diagonal (3DGS: 0.3); guard: Jacobian clamp factor (3DGS: 1.3). antialiased:
+    scale each splat's opacity by sqrt(det(Sigma2 - dilation I) / det(Sigma2)) so the dilation
+    blurs small Gaussians without adding light (gsplat's "antialiased" mode; for renders whose
+    radiance is measured, such as probes: a sub-pixel lamp keeps its energy).
 
     Returns (color (K,H,W,3) f32 premultiplied, transmittance (K,H,W) f32, expected depth
     (K,H,W) f32 = sum(z alpha T) / (1 - T) (0 where nothing was blended), stats dict with counts:
@@ -676,7 +684,7 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     info = np.empty((m, 5), np.int32)
     depth32 = np.empty(m, np.float32)
     _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp, cam_pos,
-                   width, height, dilation, rec, info, depth32)
+                   width, height, dilation, bool(antialiased), rec, info, depth32)
     tile_start, tile_list = _bin_tiles(info, ncam, tiles_x, tiles_y, tile, 16)
     ntiles = ncam * tiles_x * tiles_y
     # positive float32 depths order like their bit patterns

@@ -71,7 +71,7 @@ def project(positions, quats, scales, view_rot, view_t, intr, width, height, dil
 
 
 def render_reference(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
-                     width, height, include=None, dilation=0.3, guard=1.3, rows_per_chunk=16):
+                     width, height, include=None, dilation=0.3, guard=1.3, rows_per_chunk=16, antialiased=False):
     """Brute-force render of one camera (same arguments as ``rasterize.rasterize`` for K=1).
 
     Returns (color (H,W,3) premultiplied, transmittance (H,W), depth_sum (H,W)), float64.
@@ -96,6 +96,9 @@ def render_reference(positions, quats, scales, opacities, sh, view_rot, view_t, 
     mean, cov, z = mean[idx], cov[idx], z[idx]
     conic = np.linalg.inv(cov)
     op = np.clip(np.asarray(opacities, np.float64)[idx], 0.0, 1.0)
+    if antialiased:  # keep each splat's integral: opacity * sqrt(det(cov - dilation I) / det(cov))
+        det0 = (cov[:, 0, 0] - dilation) * (cov[:, 1, 1] - dilation) - cov[:, 0, 1] ** 2
+        op = op * np.sqrt(np.maximum(det0, 0.0) / (cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2))
     dirs = np.asarray(positions, np.float64)[idx] - cam_pos
     dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-300)
     col = np.maximum(0.0, eval_color(np.asarray(sh)[idx], dirs)) if len(idx) else np.zeros((0, 3))

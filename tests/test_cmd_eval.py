@@ -32,7 +32,11 @@ def test_eval_json_matches_the_library_and_stored_matte(processed, capsys):
     res = json.loads(out)
     row = res["frames"][0]
     assert res["avatar"] == "/World/CesiumMan" and res["guide_mesh"] == "/World/CesiumMan_guide"
-    assert res["image"] == [320, 180] and res["lighting"] is None or isinstance(res["lighting"], dict)
+    assert res["image"] == [320, 180]
+    light = res["lighting"]  # paper 4.1 metrics of the relit avatars, orig and relit
+    assert light["frames"] == [1.0] and "/World/CesiumMan" in light["avatars"]
+    for key in ("paa_y", "apf_y", "ncm_ab"):
+        assert np.isfinite(light["per_frame"]["/World/CesiumMan"]["1.0"]["relit"][key])
     # the quick demo's 5,000-Gaussian CesiumMan casts a visibly wider, softer shadow than its mesh
     assert 0.4 < row["iou"] < 0.9 and 0.0 < row["sae"] < 0.2 and 0.5 < row["bf"] <= 1.0
     assert row["shadow_px"] > 100 and row["roi_px"] > 10 * row["shadow_px"]
@@ -61,7 +65,7 @@ def test_eval_table(processed, capsys):
     code, out, _ = _eval(capsys, processed, "--frames", "1", "--width", "160")
     assert code == 0
     assert "SM-IoU" in out and "mean" in out
-    assert "lighting" in out
+    assert "lighting consistency" in out and "/World/CesiumMan" in out and "paa_y orig" in out
 
 
 def test_eval_user_errors(quick_demo, processed, capsys, tmp_path):

@@ -16,12 +16,22 @@ def _fmt(v, nd=3) -> str:
 
 
 def lighting_metrics(stage_path: str, frames, radius: float):
-    """``usd_gs.metrics_lighting.lighting_consistency_for_stage`` when that module exists, else None."""
-    try:
-        from .metrics_lighting import lighting_consistency_for_stage
-    except ImportError:
-        return None
+    """Lighting consistency of the relit avatars (paper 4.1,
+    ``usd_gs.metrics_lighting_stage.lighting_consistency_for_stage``)."""
+    from .metrics_lighting_stage import lighting_consistency_for_stage
+
     return lighting_consistency_for_stage(stage_path, frames=frames, radius=radius)
+
+
+def _jsonable(o):
+    """``json.dump`` default: numpy arrays and scalars as lists and numbers."""
+    import numpy as np
+
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def run_eval(stage_path: str, camera=None, frames=None, width: int = 960, radius: float = 2.0, config=None,
@@ -69,7 +79,7 @@ def cmd_eval(args) -> int:
     light = lighting_metrics(args.stage, [r["frame"] for r in out["frames"]], args.lighting_radius)
     out["lighting"] = light
     if args.json:
-        json.dump(out, sys.stdout, indent=2)
+        json.dump(out, sys.stdout, indent=2, default=_jsonable)
         print()
         return 0
     print(f"{out['stage']}: shadow of {out['avatar']} against the mesh {out['guide_mesh']}, camera {out['camera']} "
@@ -80,10 +90,11 @@ def cmd_eval(args) -> int:
               f"{r['roi_px']:8d} {r['seconds']['total']:6.2f}")
     m = out["mean"]
     print(f"{'mean':>7s} {_fmt(m['sae']):>7s} {_fmt(m['iou']):>7s} {_fmt(m['bf']):>7s}")
-    if light is None:
-        print("lighting metrics unavailable (usd_gs.metrics_lighting is not installed in this version)")
-    else:
-        print("lighting consistency: " + json.dumps(light))
+    from .metrics_lighting_stage import format_report
+
+    print(f"lighting consistency (paper 4.1, radius {args.lighting_radius:g} m; lower is better, "
+          "improvement = orig - relit):")
+    print(format_report(light))
     return 0
 
 

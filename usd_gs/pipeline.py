@@ -467,7 +467,8 @@ class ShotProcessor:
         centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)
         mask[span[0]:span[1]] = False
-        rgb, alpha, _ = render_cube_faces(everything, centre, self.opts.probe_size, mask=mask)
+        # antialiased: the dilation must not add light to small emitters the probe measures
+        rgb, alpha, _ = render_cube_faces(everything, centre, self.opts.probe_size, mask=mask, antialiased=True)
         t = self.clock.add("probe_render", t)
         probe = fit_probe(rgb, degree=self.opts.probe_degree, alpha=alpha, center=centre)
         t = self.clock.add("probe_fit", t)

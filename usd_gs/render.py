@@ -43,8 +43,10 @@ def _check_mask(gaussians: GaussianSet, mask) -> np.ndarray | None:
 
 
 def render_batch(gaussians: GaussianSet, cams: list[Camera], background=(0.0, 0.0, 0.0), mask=None,
-                 dilation: float = DEFAULT_DILATION):
+                 dilation: float = DEFAULT_DILATION, antialiased: bool = False):
     """Render up to 63 cameras of equal image size in one pass (one cull/projection sweep).
+    ``antialiased``: opacity-compensated dilation (``numba_kernels.rasterize.rasterize``), for
+    renders whose radiance is measured (probes).
 
     Returns (rgb (K,H,W,3), alpha (K,H,W), depth (K,H,W)) float32, as :func:`render` per camera.
     """
@@ -60,7 +62,7 @@ def render_batch(gaussians: GaussianSet, cams: list[Camera], background=(0.0, 0.
         gaussians.positions, gaussians.orientations, gaussians.scales, gaussians.opacities, gaussians.sh,
         np.stack([v[0] for v in vm]), np.stack([v[1] for v in vm]), np.stack([c.intrinsics() for c in cams]),
         np.array([[c.near, c.far] for c in cams]), np.stack([c.position for c in cams]), w, h,
-        include=_check_mask(gaussians, mask), dilation=dilation)
+        include=_check_mask(gaussians, mask), dilation=dilation, antialiased=antialiased)
     bg = np.asarray(background, np.float32).reshape(3)
     rgb = color + trans[..., None] * bg
     alpha = (1.0 - trans).astype(np.float32)
@@ -79,7 +81,7 @@ def render(gaussians: GaussianSet, camera: Camera, background=(0.0, 0.0, 0.0), m
 
 
 def render_cube_faces(gaussians: GaussianSet, position, size: int, mask=None, background=(0.0, 0.0, 0.0),
-                      near: float = 0.01, dilation: float = DEFAULT_DILATION):
+                      near: float = 0.01, dilation: float = DEFAULT_DILATION, antialiased: bool = False):
     """Render the six OpenGL cube-map faces (+X, -X, +Y, -Y, +Z, -Z) seen from ``position``.
 
     Pixel (f, i, j) looks along ``numba_kernels.cubemap_dirs.cube_face_directions(size)[f, i, j]``.
@@ -87,7 +89,7 @@ def render_cube_faces(gaussians: GaussianSet, position, size: int, mask=None, ba
     the expected view depth along each face's axis (not the distance along the ray).
     """
     cams = cube_face_cameras(position, size, near=near)
-    return render_batch(gaussians, cams, background, mask, dilation)
+    return render_batch(gaussians, cams, background, mask, dilation, antialiased)
 
 
 def to_srgb8(rgb: np.ndarray) -> np.ndarray:
