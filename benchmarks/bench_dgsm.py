@@ -99,8 +99,8 @@ def main() -> None:
     print(f"scene: {avatar.count} occluders, {room.count} receivers, light {light.round(3)} "
           f"(setup {time.perf_counter() - t:.1f} s); numba threads {numba.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}")
-    cfg = DGSMConfig()
-    paper = DGSMConfig(k_sigma=3.0, refine_contrast=None)
+    cfg = DGSMConfig(sampling="mc", n_samples=8)  # the bench configuration (paper: MC footprint)
+    paper = DGSMConfig(k_sigma=3.0, refine_contrast=None, sampling="mc", n_samples=8)
     t = time.perf_counter()
     for cc in (cfg, paper):
         dw = build_dgsm(avatar.subset(slice(0, 2000)), room.subset(slice(0, 20000)), light, cc)  # numba warm-up

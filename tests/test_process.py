@@ -155,7 +155,7 @@ def test_output_is_deterministic_with_mc_sampling(quick_demo, tmp_path):
     (tmp_path / "b").mkdir()
     a, b = tmp_path / "a" / "x.lit.usdc", tmp_path / "b" / "x.lit.usdc"  # same name: probe paths are relative
     for out in (a, b):
-        assert main(["process", str(quick_demo), "-o", str(out), "--frames", "2", "-q"]) == 0
+        assert main(["process", str(quick_demo), "-o", str(out), "--frames", "2", "--sampling", "mc", "-q"]) == 0
     assert a.read_bytes() == b.read_bytes()
 
 

@@ -57,10 +57,11 @@ class Variant:
 def variants(quick: bool = False) -> list[Variant]:
     """The ablation and sweep variants (module docstring); ``quick`` trims the sweep."""
     base = DGSMConfig()
-    v = [Variant("default", "default (MC 8, avg, octahedral 512, K 64)", base)]
+    label = f"default ({base.sampling}, {base.mapping}, octahedral {base.atlas_size}, K {base.K})"
+    v = [Variant("default", label, base)]
     v += [Variant("A sampling", "centre sample", replace(base, sampling="center", n_samples=1)),
           Variant("A sampling", "deterministic 7-point stencil", replace(base, sampling="stencil7", n_samples=7)),
-          Variant("A sampling", "MC footprint, 8 samples", base)]
+          Variant("A sampling", "MC footprint, 8 samples", replace(base, sampling="mc", n_samples=8))]
     names = {"avg": "avg", "simple": "simple", "mass": "mass (= the paper's diag for rotated Gaussians)",
              "diag": "per-ray sqrt(d^T A d) (this project's 'diag')"}
     v += [Variant("B mapping", names[m], replace(base, mapping=m)) for m in ("avg", "simple", "mass", "diag")]

@@ -37,7 +37,13 @@ exit codes: 0 ok, 1 internal error or validation problems, 2 bad input or option
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    pass
+    """Raw descriptions; appends ``(default: X)`` only where X says something (not None/False:
+    those options state their effective default in their own help)."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
 
 
 # Modules that define subcommands; each has ``REGISTRARS``: functions (subparsers, formatter).

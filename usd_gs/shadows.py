@@ -18,7 +18,11 @@ W=256 is 4x worse, W=1024 doubles the build time for ~30 % less error;
 at 4 it is < 3e-4 per occluder; ``refine_contrast=0.1``: exact re-evaluation of the ~2 % of
 lookups that straddle a shadow edge sharper than a pixel, bringing the per-receiver max
 error from ~0.15 to < 0.05; ``roi_radius=2`` m as the paper; ``mapping='avg'`` (eq. 5);
-``sampling='mc', n_samples=8, seed=0`` (the paper's default MC footprint).
+``sampling='center'``: against the mesh pseudo ground truth on the demo shot (``usdgs bench``)
+the centre sample scores SAE 0.023 / SM-IoU 0.843 / BF 0.930 where the paper's MC footprint
+(``sampling='mc', n_samples=8, seed=0``, still available) scores 0.034 / 0.812 / 0.879: the
+rendered receiver splat already spreads its one value over its footprint, so averaging over the
+footprint first blurs shadow edges twice; it is also 8x fewer lookups.
 This module imports numba (through the kernels); do not import it from file-I/O modules.
 """
 
@@ -63,7 +67,7 @@ class DGSMConfig:
     use_roi: bool = True
     use_tile_culling: bool = True
     bin_skip: bool = True
-    sampling: str = "mc"
+    sampling: str = "center"
     n_samples: int = 8
     seed: int = 0
     refine_contrast: float | None = 0.1
