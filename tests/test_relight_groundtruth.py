@@ -60,13 +60,14 @@ def test_environment_only(env_only):
 
 
 def test_lamp_and_rasteriser_dilation():
-    """With the lamp, the rasteriser's 0.3 px^2 dilation inflates the small emitter (measured
-    11.5 dB with the mesh normals; 26.1 dB without dilation). Relit beats unrelit on PSNR and on
-    NCM-ab; PAA-Y and APF-Y do not improve here (see README)."""
+    """With the lamp: probes are rendered without the display dilation (measured 26.1 dB with
+    the mesh normals); the 3DGS 0.3 px^2 dilation, even opacity-compensated, loses the small
+    emitter's tails (19.3 dB). Relit beats unrelit on PSNR and on NCM-ab; PAA-Y and APF-Y do
+    not improve here (see README)."""
     r = relight_ground_truth(n_avatar=1500, n_surface=6000, lamp=True, props=False, metrics=True)
-    r0 = relight_ground_truth(n_avatar=1500, n_surface=6000, lamp=True, props=False, metrics=False, dilation=0.0)
+    r3 = relight_ground_truth(n_avatar=1500, n_surface=6000, lamp=True, props=False, metrics=False, dilation=0.3)
     assert r["psnr_relit"] > r["psnr_orig"] + 1.5
-    assert r0["psnr_relit_true_normals"] > 24.0
-    assert r0["psnr_relit_true_normals"] > r["psnr_relit_true_normals"] + 10.0
+    assert r["psnr_relit_true_normals"] > 24.0
+    assert r["psnr_relit_true_normals"] > r3["psnr_relit_true_normals"] + 4.0
     assert r["metrics"]["improvement"]["ncm_ab"] > 2.0
     assert r["metrics_gt"]["improvement"]["ncm_ab"] > 2.0

@@ -459,19 +459,15 @@ class ShotProcessor:
     def _relight(self, path, g, everything, span, frame, author, probe_dir):
         from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
-        from .probe import fit_probe
+        from .probe import render_probe
         from .relight import relight_sh
-        from .render import render_cube_faces
 
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)
         mask[span[0]:span[1]] = False
-        # antialiased: the dilation must not add light to small emitters the probe measures
-        rgb, alpha, _ = render_cube_faces(everything, centre, self.opts.probe_size, mask=mask, antialiased=True)
-        t = self.clock.add("probe_render", t)
-        probe = fit_probe(rgb, degree=self.opts.probe_degree, alpha=alpha, center=centre)
-        t = self.clock.add("probe_fit", t)
+        probe = render_probe(everything, centre, self.opts.probe_size, self.opts.probe_degree, mask)
+        t = self.clock.add("probe", t)
         local = self._local_normals.get(path)
         if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
             a = self._read(path, self.anchor_frame)  # a chunk: normals from the shot's first frame

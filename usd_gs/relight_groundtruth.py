@@ -25,7 +25,7 @@ Gaussian, isolates the probe + transfer error from the one-probe-per-avatar assu
 
 The relighting under test is the project's path, called as ``ShotProcessor._relight`` calls
 it: cube faces at the avatar's alpha-weighted centroid from everything else
-(``render_cube_faces``), ``fit_probe``, ``gaussian_normals`` and ``relight_sh`` with the
+(``probe.render_probe``), ``gaussian_normals`` and ``relight_sh`` with the
 ``ProcessOptions`` defaults. Eq. 10 divides by ``int S = pi`` (q = 1), so the relit colour of
 an avatar whose colour is its albedo is ``albedo * E_probe(n) / pi``: the same units as the
 ground truth, no exposure factor.
@@ -307,26 +307,24 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     """The main job's relighting of one avatar: ``(relit SH (N, K, 3), probe, normals)``.
 
     Calls what ``ShotProcessor._relight`` calls, with ``ProcessOptions`` (defaults if None):
-    cube faces at the alpha-weighted centroid from ``others``, ``fit_probe``, outward
-    ``gaussian_normals`` and ``relight_sh``. ``dilation``: the rasteriser's low-pass term in
+    ``render_probe`` at the alpha-weighted centroid from ``others``, outward
+    ``gaussian_normals`` and ``relight_sh``. ``dilation``: the probe render's low-pass term in
     px^2 (None: its default, which is what the main job uses).
     """
     from numba_kernels.normals import gaussian_normals
 
     from .lights import alpha_weighted_centroid
     from .pipeline import ProcessOptions
-    from .probe import fit_probe
+    from .probe import PROBE_DILATION, render_probe
     from .relight import relight_sh
-    from .render import render_cube_faces
 
     o = options or ProcessOptions()
     centre = alpha_weighted_centroid(avatar)
     everything = GaussianSet.concatenate([others, avatar], label="shot")
     mask = np.ones(everything.count, bool)
     mask[others.count:] = False
-    kw = {} if dilation is None else {"dilation": float(dilation)}
-    rgb, alpha, _ = render_cube_faces(everything, centre, o.probe_size, mask=mask, **kw)
-    probe = fit_probe(rgb, degree=o.probe_degree, alpha=alpha, center=centre)
+    probe = render_probe(everything, centre, o.probe_size, o.probe_degree, mask,
+                         PROBE_DILATION if dilation is None else dilation)
     normals = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
     sh, _ = relight_sh(avatar.sh, normals, probe, q=o.relight_q, gamma=o.relight_gamma, t_max=o.relight_t_max)
     return sh, probe, normals
