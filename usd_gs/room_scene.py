@@ -272,7 +272,7 @@ def make_room(size=(8.0, 3.0, 8.0), density: float = 800.0, seed: int = 0,
     for rect in rects:
         o, eu, ev = rect[:3]
         pieces += [(rect, po, pu, pv, sp) for po, pu, pv, sp in _split_rectangle(o, eu, ev, spacing, detail)]
-    for (o, eu, ev, nrm, part, albedo), po, pu, pv, sp in pieces:
+    for (o, _eu, _ev, nrm, part, albedo), po, pu, pv, sp in pieces:
         pts, rot, uv = _rectangle(po, pu, pv, nrm, sp, rng)
         n = len(pts)
         # uv from the whole rectangle's origin (the plank pattern is continuous across pieces)
