@@ -174,17 +174,22 @@ def test_point_triangle_distance_reference():
 
 
 def test_guide_mesh_carries_the_gaussians(stage):
-    """Every Gaussian centre of frame f lies on the guide mesh of frame f (within 1 mm), and
-    the mesh of another frame is clearly elsewhere (the check can fail)."""
+    """Every Gaussian centre of frame f is a point of the guide mesh of frame f moved half its
+    sigma inwards (avatar_from_mesh.AVATAR_INSET; within 1 mm), and the mesh of another frame
+    is clearly elsewhere (the check can fail)."""
     prim = stage.GetPrimAtPath("/World/CesiumMan")
     guide = UsdGeom.Mesh(stage.GetPrimAtPath("/World/CesiumMan_guide"))
     faces = np.array(guide.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
     rng = np.random.default_rng(5)
     for f in (1, QUICK_FRAMES):
-        pts = read_gaussian_prim(prim, f).positions.astype(np.float64)
-        sub = pts[rng.choice(len(pts), 60, replace=False)]
+        g = read_gaussian_prim(prim, f)
+        pick = rng.choice(g.count, 60, replace=False)
+        sub = g.positions[pick].astype(np.float64)
         verts = np.array(guide.GetPointsAttr().Get(f), np.float64)
-        assert _point_triangle_distance(sub, verts[faces]).max() < 1e-3
+        d = _point_triangle_distance(sub, verts[faces])
+        inset = 0.5 * g.scales[pick, 0]
+        # within the inset of the skin everywhere; exactly the inset where no other part is nearer
+        assert np.all(d <= inset + 1e-3) and np.median(np.abs(d - inset)) < 1e-3
     other = np.array(guide.GetPointsAttr().Get(QUICK_FRAMES), np.float64)
     pts = read_gaussian_prim(prim, 1).positions.astype(np.float64)[:60]
     assert np.median(_point_triangle_distance(pts, other[faces])) > 0.05
@@ -355,3 +360,47 @@ def test_bad_options_exit_2(tmp_path, capsys):
     assert "--frames" in capsys.readouterr().err
     assert main(["demo", "make", "-o", str(tmp_path / "d.txt"), "--quick"]) == 2
     assert "d.txt" in capsys.readouterr().err
+
+
+def test_room_detail_only_in_the_default_demo():
+    from usd_gs.room_scene import DetailRegion
+
+    assert ds.room_detail(ds.QUICK) == []
+    assert ds.room_detail(ds.DemoOptions()) == [DetailRegion(lo, hi, 6400.0) for lo, hi in ds.SHADOW_DETAIL]
+    assert ds.room_detail(ds.DemoOptions(room_detail_density=500.0)) == []  # not above room_density
+    with pytest.raises(UserError, match="room-detail-density"):
+        ds.DemoOptions(room_detail_density=-1.0).check()
+
+
+def test_shadow_detail_holds_cesium_mans_shadows():
+    """Every floor / x = -4 wall point where CesiumMan's mesh shadow (strength > 0.1, the lamps
+    weighted as the pipeline does) falls inside the 2 m evaluation ROI, over the walk loop, lies
+    in a SHADOW_DETAIL box (the check can fail: the shadow reaches x > 0.2 outside the ROI)."""
+    from usd_gs.avatar_from_mesh import posed_meshes
+    from usd_gs.gltf_skin import load_skinned_mesh
+    from usd_gs.light_prims import ShotLight
+    from usd_gs.metrics_shadow import mesh_shadow_matte
+
+    lights = [ShotLight(f"lamp{i}", "point", lp.position, color=lp.color, intensity=lp.intensity)
+              for i, lp in enumerate(make_room(density=10.0).lamps)]
+    mesh = load_skinned_mesh(DATA / ds.DATA_FILES["cesium_man"])
+    times = ds.frame_times(48)[::6]
+    where, heading = ds.CESIUM_PATH.at(times)
+    h = 0.05
+    a = np.arange(-4 + h / 2, 4, h)
+    floor = np.stack(np.meshgrid(a, [0.0], a, indexing="ij"), -1).reshape(-1, 3)
+    wall = np.stack(np.meshgrid([-4.0], np.arange(h / 2, 3, h), a, indexing="ij"), -1).reshape(-1, 3)
+    pts = np.concatenate([floor, wall])
+    boxes = [(np.array(lo), np.array(hi)) for lo, hi in ds.SHADOW_DETAIL]
+    in_box = np.any([np.all((pts >= lo) & (pts <= hi), axis=1) for lo, hi in boxes], axis=0)
+    shadow_in_roi = np.zeros(len(pts), bool)
+    shadow_anywhere = np.zeros(len(pts), bool)
+    for (v, f), p, hd in zip(posed_meshes(mesh, times), where, heading, strict=True):
+        v = v @ ds.rotation_y(float(hd)).T + p
+        s = mesh_shadow_matte(pts[:, None], np.ones((len(pts), 1), bool), v, f, lights)[:, 0] > 0.1
+        c = v.mean(axis=0)
+        shadow_in_roi |= s & (np.maximum(np.abs(pts[:, 0] - c[0]), np.abs(pts[:, 2] - c[2])) <= 2.0)
+        shadow_anywhere |= s
+    assert shadow_in_roi.sum() > 500
+    assert np.all(in_box[shadow_in_roi])
+    assert not np.all(in_box[shadow_anywhere])

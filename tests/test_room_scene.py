@@ -13,7 +13,9 @@ from usd_gs.room_scene import (
     PART_FURNITURE,
     PART_LAMP,
     PART_WALL,
+    DetailRegion,
     _shadowed,
+    _split_rectangle,
     default_boxes,
     make_room,
 )
@@ -175,3 +177,63 @@ def test_bad_input():
         make_room(density=4.0, lamp_positions=((0.0, 2.0, 0.0),))
     with pytest.raises(ValueError, match="density"):
         make_room(density=0.0)
+
+
+def test_split_rectangle_tiles_it():
+    # Floor 8 x 8 m from (-4, 0, -4); box x in [-1.1, 0.3] (snapped out to whole 0.125 m cells:
+    # [-1.125, 0.375]), z beyond the far edge (clipped at 4); a second box misses the plane.
+    regions = [DetailRegion((-1.1, -0.1, 1.0), (0.3, 0.1, 9.0), 1600.0), DetailRegion((0, 1, 0), (1, 2, 1), 1e4)]
+    pieces = _split_rectangle((-4, 0, -4), (8, 0, 0), (0, 0, 8), SPACING, regions)
+    assert sum(np.linalg.norm(u) * np.linalg.norm(v) for _, u, v, _ in pieces) == pytest.approx(64.0)
+    dense = [(o, u, v) for o, u, v, sp in pieces if sp == pytest.approx(0.025)]
+    assert len(dense) == 1 and len(pieces) == 4  # the strip beyond z = 4 is empty
+    o, u, v = dense[0]
+    np.testing.assert_allclose(o, [-1.125, 0.0, 1.0])
+    np.testing.assert_allclose(o + u + v, [0.375, 0.0, 4.0])
+    # Pieces do not overlap: sampled points fall in exactly one piece.
+    q = np.random.default_rng(0).uniform([-4, 0, -4], [4, 0, 4], (5000, 3))
+    inside = [np.all((q >= np.minimum(o, o + u + v) - 1e-12) & (q <= np.maximum(o, o + u + v) + 1e-12), axis=1)
+              for o, u, v, _ in pieces]
+    assert np.all(np.sum(inside, axis=0) == 1)
+
+
+def test_detail_region_density_and_no_gaps(room):
+    box = DetailRegion((-2.0, -0.1, -1.0), (0.0, 0.1, 1.0), 1024.0)  # 32^2 per m^2, spacing 1/32 m
+    dense = make_room(density=64.0, seed=0, detail=[box])
+    g = dense.gaussians
+    p = g.positions.astype(np.float64)
+    floor = dense.part == PART_FLOOR
+    inbox = floor & (p[:, 0] > -2) & (p[:, 0] < 0) & (p[:, 2] > -1) & (p[:, 2] < 1)
+    assert inbox.sum() == 64 * 64  # 2 m x 2 m at 32 per metre and edge
+    np.testing.assert_allclose(g.scales[inbox, 0], 0.6 / 32, rtol=1e-6)
+    np.testing.assert_allclose(g.scales[floor & ~inbox, 0], 0.6 * SPACING, rtol=1e-6)
+    # Only the floor changed: the other parts (walls, furniture) are outside the box.
+    assert dense.counts["floor"] == room.counts["floor"] - 16 * 16 + 64 * 64
+    assert {k: v for k, v in dense.counts.items() if k != "floor"} == \
+        {k: v for k, v in room.counts.items() if k != "floor"}
+    # No gap where the pieces meet: the floor's alpha coverage along the box's border is about
+    # as high as anywhere on the uniform floor (measured min 0.64 vs 0.72; a missing row of
+    # cells would leave ~0.2).
+    rng = np.random.default_rng(1)
+    k = 1500
+    band = np.concatenate([
+        np.stack([rng.uniform(-2.2, 0.2, k), rng.choice([-1.0, 1.0], k) + rng.uniform(-0.1, 0.1, k)], 1),
+        np.stack([rng.choice([-2.0, 0.0], k) + rng.uniform(-0.1, 0.1, k), rng.uniform(-1.2, 1.2, k)], 1)])
+    assert _floor_coverage(dense, band).min() > 0.8 * _floor_coverage(room, rng.uniform(-3.9, 3.9, (2 * k, 2))).min()
+    with pytest.raises(ValueError, match="detail region"):
+        make_room(density=64.0, detail=[DetailRegion((0, 0, 0), (1, 1, 1), 0.0)])
+
+
+def _floor_coverage(scene, xz):
+    """Alpha coverage ``1 - prod(1 - o g)`` of the floor Gaussians (in-plane, isotropic) at (M, 2) x/z points."""
+    from scipy.spatial import cKDTree
+
+    m = scene.part == PART_FLOOR
+    c = scene.gaussians.positions[m][:, [0, 2]].astype(np.float64)
+    s = scene.gaussians.scales[m, 0].astype(np.float64)
+    o = scene.gaussians.opacities[m].astype(np.float64)
+    out = np.empty(len(xz))
+    for i, nb in enumerate(cKDTree(c).query_ball_point(xz, 3 * s.max())):
+        nb = np.asarray(nb, np.int64)
+        out[i] = 1.0 - np.prod(1.0 - o[nb] * np.exp(-0.5 * np.sum((c[nb] - xz[i]) ** 2, axis=1) / s[nb] ** 2))
+    return out

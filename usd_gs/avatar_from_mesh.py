@@ -26,6 +26,18 @@ DEFAULT_SIGMA_FACTOR = 0.9
 opacity 0.95, 0.9 keeps the alpha coverage ``1 - prod(1 - o_i g_i)`` at random surface points
 above 0.95 everywhere (0.75: minimum ~0.85, 0.6: ~0.5; tests/test_avatar_from_mesh.py)."""
 
+AVATAR_SIGMA_FACTOR = 0.75
+AVATAR_INSET = 0.5
+"""Defaults of :func:`posed_avatar_frames`: in-plane sigma ``0.75 * spacing``, centres moved
+``0.5 * sigma`` inwards along the normal. A flat Gaussian tangent to a curved surface sticks
+out of it, so Gaussians on the surface itself render (and shadow) a silhouette that is too
+wide: on CesiumMan (30k Gaussians, sigma 6.4 mm at 0.9) the alpha-0.5 contour lies 3.6 mm
+outside the mesh's projected silhouette on average (alpha-0.1: 5.8 mm). With these values it
+lies 0.2 mm inside (alpha-0.1: 1.7 mm outside), silhouette IoU 0.983 instead of 0.952, and
+the interior stays covered (alpha >= 0.95 at 99.9 % of the interior pixels) -- measured from
+four views at 1.8 mm pixels without the rasteriser's low-pass dilation; inset 0.7 sigma already
+leaves thin parts at alpha 0.8 (tests/test_avatar_from_mesh.py checks coverage and contour)."""
+
 
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) float64 triangle areas."""
@@ -129,10 +141,12 @@ def tangent_frames(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray,
 def gaussians_on_mesh(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, face_index: np.ndarray,
                       bary: np.ndarray, colors: np.ndarray, thickness_ratio: float = 0.1, opacity: float = 0.95,
                       spacing: float | np.ndarray | None = None, sigma_factor: float = DEFAULT_SIGMA_FACTOR,
-                      sh_degree: int = 0, label: str = "<mesh gaussians>") -> GaussianSet:
+                      sh_degree: int = 0, inset: float = 0.0, label: str = "<mesh gaussians>") -> GaussianSet:
     """Flat Gaussians tangent to a triangle mesh at the given surface samples.
 
-    - position = barycentric point (float64 math, stored float32);
+    - position = barycentric point (float64 math, stored float32), moved ``inset`` times the
+      in-plane sigma against the interpolated normal (inwards for outward normals; 0: on the
+      surface, see :data:`AVATAR_INSET`);
     - orientation = :func:`tangent_frames` as (w, x, y, z) quaternions;
     - in-plane sigma = ``sigma_factor * spacing``, normal sigma = ``thickness_ratio`` times
       that; ``spacing`` (scalar or (n,) metres) defaults to ``sqrt(total area / n)``;
@@ -143,12 +157,15 @@ def gaussians_on_mesh(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarr
     n = face_index.shape[0]
     if not 0 < thickness_ratio <= 1:
         raise ValueError(f"thickness_ratio must be in (0, 1], got {thickness_ratio}")
+    if not 0 <= inset < 3:
+        raise ValueError(f"inset must be in [0, 3) in-plane sigmas, got {inset}")
     pos = barycentric_points(vertices, faces, face_index, bary)
     rot = tangent_frames(vertices, faces, normals, face_index, bary)
     if spacing is None:
         spacing = np.sqrt(face_areas(vertices, faces).sum() / max(n, 1))
     sigma = sigma_factor * np.broadcast_to(np.asarray(spacing, np.float64), (n,))
     sigma = np.maximum(sigma, 1e-7)
+    pos = pos - (inset * sigma)[:, None] * rot[:, :, 2]
     scales = np.stack([sigma, sigma, thickness_ratio * sigma], axis=1)
     col = np.broadcast_to(np.asarray(colors, np.float64), (n, 3))
     sh = np.zeros((n, sh3dgs.num_coeffs(sh_degree), 3), np.float32)
@@ -163,14 +180,15 @@ def posed_meshes(mesh: SkinnedMesh, times, loop: bool = True) -> list[tuple[np.n
 
 def posed_avatar_frames(mesh: SkinnedMesh, times, n_gaussians: int = 60000, seed: int = 0, loop: bool = True,
                         thickness_ratio: float = 0.1, opacity: float = 0.95,
-                        sigma_factor: float = DEFAULT_SIGMA_FACTOR, sh_degree: int = 0,
-                        label: str = "avatar") -> list[GaussianSet]:
+                        sigma_factor: float = AVATAR_SIGMA_FACTOR, sh_degree: int = 0,
+                        inset: float = AVATAR_INSET, label: str = "avatar") -> list[GaussianSet]:
     """One :class:`GaussianSet` per time (seconds): the same ``n_gaussians`` skin samples posed.
 
     Samples are drawn once on the rest mesh (area-weighted, ``seed``), coloured once from
     the texture, and re-evaluated on every LBS-posed mesh (``loop``: the clip repeats with
     ``gltf_skin.loop_period``). The in-plane sigma of sample k follows the local stretch of
-    its triangle: ``sigma_factor * sqrt(A_rest / n) * sqrt(area_posed / area_rest)``.
+    its triangle: ``sigma_factor * sqrt(A_rest / n) * sqrt(area_posed / area_rest)``; centres
+    sit ``inset`` sigmas inside the skin (:data:`AVATAR_INSET`: silhouette matched to the mesh).
     Gaussian k is the same skin point in every frame.
     """
     rest_world = pose(mesh, None)[0]  # skeleton rest TRS, world units (areas comparable with posed ones)
@@ -186,5 +204,5 @@ def posed_avatar_frames(mesh: SkinnedMesh, times, n_gaussians: int = 60000, seed
         stretch = np.sqrt(face_areas(verts, mesh.faces)[face] / np.maximum(rest_area[face], 1e-300))
         frames.append(gaussians_on_mesh(verts, mesh.faces, normals, face, bary, colors, thickness_ratio, opacity,
                                         spacing=base_spacing * stretch, sigma_factor=sigma_factor,
-                                        sh_degree=sh_degree, label=f"{label} t={float(t):.4f}s"))
+                                        sh_degree=sh_degree, inset=inset, label=f"{label} t={float(t):.4f}s"))
     return frames

@@ -12,7 +12,10 @@ its animated data is tens of MB. Layout on disk, for ``-o stages/demo.usda``:
 - ``stages/demo_data/room.usdc``: ``/World/Room`` (Xform), scene Gaussians from
   :func:`usd_gs.room_scene.make_room` (static, SH degree 1) split into spatial bricks
   ``/World/Room/Brick_NNNN`` of at most ``room_brick_size`` Gaussians (``usd_gs.bricks``),
-  each with ``usdgs:role`` scene, so shadows re-author only the bricks they touch.
+  each with ``usdgs:role`` scene, so shadows re-author only the bricks they touch. Where
+  CesiumMan's shadows fall (:data:`SHADOW_DETAIL`: a floor patch and the foot of the x = -4
+  wall) the surfaces carry ``room_detail_density`` Gaussians per m^2 (small, dense splats,
+  as a capture has on surfaces), elsewhere ``room_density``.
 - ``stages/demo_data/cesium_man.usdc``: ``/World/CesiumMan``, role avatar, SH degree 0:
   surface Gaussians of ``humans/CesiumMan.glb`` skinned by its own walk clip (linear
   blend skinning, :func:`usd_gs.avatar_from_mesh.posed_avatar_frames`), time-sampled at
@@ -22,7 +25,9 @@ its animated data is tens of MB. Layout on disk, for ``-o stages/demo.usda``:
   ``UsdGeom.Mesh`` (purpose guide, triangles, ``subdivisionScheme`` none), points and
   extent time-sampled at every frame in the same world placement, topology static; its
   relationship ``usdgs:demo:guideFor`` targets ``/World/CesiumMan``. Every Gaussian centre
-  of frame f lies on the mesh of frame f (same barycentric point, float32 rounding).
+  of frame f is the same barycentric point of the mesh of frame f, moved half its in-plane
+  sigma inwards along the normal (``avatar_from_mesh.AVATAR_INSET``: the Gaussians'
+  silhouette then matches the mesh's).
 - ``stages/demo_data/biker.usdc``: ``/World/Biker``, role avatar: the real capture
   ``splats/biker.ply`` with its canonical placement baked into the points (turned to face
   +Z, feet at y = 0, centred on the Y axis, uniformly scaled to :data:`BIKER_HEIGHT`), moved
@@ -131,6 +136,15 @@ CAMERA_CLIPPING = (0.05, 30.0)
 circles every avatar and the guitar stay inside the central 84% of the frame (NDC |x|, |y| <= 0.84)."""
 
 
+SHADOW_DETAIL = (((-4.05, -0.05, -1.0), (0.2, 0.05, 2.8)), ((-4.05, 0.0, -0.9), (-3.95, 1.4, 0.7)))
+"""Boxes (lo, hi, metres) of the room surfaces that get ``room_detail_density``: the floor
+x in [-4, 0.2], z in [-1, 2.8] (16 m^2) and the x = -4 wall below 1.4 m for z in [-0.9, 0.7]
+(2.2 m^2). They hold every point where CesiumMan's mesh shadow (strength > 0.1, either lamp)
+falls inside the 2 m evaluation ROI over the whole walk loop (ray cast on a 2 cm grid over 48
+frames: floor x in [-3.99, 0.01], z in [-0.79, 2.63]; wall y <= 1.29, z in [-0.69, 0.51]),
+with a margin of 0.15-0.2 m; tests/test_demo_stage.py checks it."""
+
+
 @dataclass(frozen=True)
 class DemoOptions:
     """What to generate. ``biker_gaussians``/``guitar_gaussians`` None keep every splat of the
@@ -139,6 +153,7 @@ class DemoOptions:
     frames: int = 48
     avatar_gaussians: int = 30000
     room_density: float = 800.0
+    room_detail_density: float | None = 6400.0
     biker_gaussians: int | None = None
     guitar_gaussians: int | None = None
     seed: int = 0
@@ -151,6 +166,9 @@ class DemoOptions:
             raise UserError(f"--avatar-gaussians must be >= 1, got {self.avatar_gaussians}")
         if not (self.room_density > 0 and math.isfinite(self.room_density)):
             raise UserError(f"--room-density must be a positive number of Gaussians per m^2, got {self.room_density}")
+        d = self.room_detail_density
+        if d is not None and not (d > 0 and math.isfinite(d)):
+            raise UserError(f"--room-detail-density must be a positive number of Gaussians per m^2, got {d}")
         if self.room_brick_size < 1:
             raise UserError(f"room brick size must be >= 1, got {self.room_brick_size}")
         for name in ("biker_gaussians", "guitar_gaussians"):
@@ -159,8 +177,8 @@ class DemoOptions:
                 raise UserError(f"{name} must be >= 1, got {v}")
 
 
-QUICK = DemoOptions(frames=8, avatar_gaussians=5000, room_density=60.0, biker_gaussians=8000, guitar_gaussians=5000,
-                    room_brick_size=1000)
+QUICK = DemoOptions(frames=8, avatar_gaussians=5000, room_density=60.0, room_detail_density=None,
+                    biker_gaussians=8000, guitar_gaussians=5000, room_brick_size=1000)
 """``--quick``: a tiny demo for tests (about 30k Gaussians in all, 8 frames)."""
 
 
@@ -298,12 +316,24 @@ def _subsample(g, n: int | None, seed: int):
     return g.subset(idx)
 
 
+def room_detail(opts: DemoOptions) -> list:
+    """The ``make_room`` detail regions of ``opts`` (:data:`SHADOW_DETAIL` at
+    ``room_detail_density``; none when that is None or not above ``room_density``)."""
+    from .room_scene import DetailRegion
+
+    d = opts.room_detail_density
+    if d is None or d <= opts.room_density:
+        return []
+    return [DetailRegion(lo, hi, float(d)) for lo, hi in SHADOW_DETAIL]
+
+
 def _write_room(opts: DemoOptions, path: Path):
     from .bricks import write_bricked
     from .room_scene import make_room
     from .usd_io import save_stage_atomic
 
-    room = make_room(size=ROOM_SIZE, density=opts.room_density, seed=opts.seed, label="/World/Room")
+    room = make_room(size=ROOM_SIZE, density=opts.room_density, seed=opts.seed, detail=room_detail(opts),
+                     label="/World/Room")
     stage = _new_layer_stage(opts.frames)
     write_bricked(stage, "/World/Room", room.gaussians, opts.room_brick_size, keep_raw=False, role="scene")
     save_stage_atomic(stage, path)
@@ -459,7 +489,8 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
     say = log or (lambda *_: None)
 
     counts: dict[str, int] = {}
-    say(f"  room ({opts.room_density:g} Gaussians/m^2) ...")
+    detail = f", {opts.room_detail_density:g} where CesiumMan's shadows fall" if room_detail(opts) else ""
+    say(f"  room ({opts.room_density:g} Gaussians/m^2{detail}) ...")
     room = _write_room(opts, layers["room"])
     counts["/World/Room"] = room.gaussians.count
     say(f"  CesiumMan ({opts.avatar_gaussians} Gaussians x {opts.frames} frames) ...")

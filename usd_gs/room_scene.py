@@ -3,7 +3,11 @@
 Coordinates: **Y-up, metres**. The room is the box ``[-sx/2, sx/2] x [0, sy] x [-sz/2, sz/2]``
 (floor at y = 0). Surfaces are rectangles covered by flat Gaussians on a jittered grid
 (local z axis = surface normal pointing into the room / out of the furniture, sigma
-in-plane = ``0.6 * spacing``, along the normal ``thickness_ratio`` times that). Parts:
+in-plane = ``0.6 * spacing``, along the normal ``thickness_ratio`` times that). Optional
+:class:`DetailRegion` boxes give the surfaces inside them a higher density (smaller, denser
+Gaussians, as a capture has on the surfaces it saw up close): each surface rectangle is cut
+into the part inside the box and up to four strips around it, each sampled on its own
+jittered grid, so the pieces tile the rectangle without gaps or overlaps. Parts:
 floor, four walls, ceiling (optional), furniture boxes (a table with legs, a sofa, a
 shelf) and the lamp emitters.
 
@@ -54,6 +58,16 @@ class Box:
     albedo: np.ndarray
 
 
+@dataclass(frozen=True)
+class DetailRegion:
+    """An axis-aligned box (``lo``, ``hi``: (3,) metres): the parts of the room's surface
+    rectangles inside it are sampled at ``density`` Gaussians per m^2 instead of the room's."""
+
+    lo: tuple
+    hi: tuple
+    density: float
+
+
 @dataclass
 class RoomScene:
     """The generated room: ``gaussians`` (all parts, float32), ``part`` (N,) int8 part ids
@@ -98,6 +112,53 @@ def _rectangle(origin, edge_u, edge_v, normal, spacing: float, rng: np.random.Ge
     pts = origin + a[:, None] * edge_u + b[:, None] * edge_v
     rot = _frame(np.asarray(normal, np.float64), edge_u)
     return pts, rot, np.stack([a * lu, b * lv], axis=1)
+
+
+def _snap(x: float, cell: float, up: bool) -> float:
+    """``x`` (>= 0) rounded down (or up) to a whole number of ``cell`` (within 1e-9 of one: that one)."""
+    k = x / cell
+    r = round(k)
+    if abs(k - r) < 1e-9:
+        return r * cell
+    return (np.ceil(k) if up else np.floor(k)) * cell
+
+
+def _split_rectangle(origin, edge_u, edge_v, spacing: float, regions) -> list[tuple]:
+    """Pieces ``(origin, edge_u, edge_v, spacing)`` tiling the rectangle ``origin + a edge_u +
+    b edge_v`` (a, b in [0, 1]; edges along world axes): for the first region whose box meets
+    the rectangle's plane and area, the part inside the box (its cut lines snapped outwards to
+    whole cells of ``spacing``) gets ``min(spacing, 1 / sqrt(density))`` and the strips around
+    it keep ``spacing``; every piece is split again by the remaining regions."""
+    o, eu, ev = (np.asarray(a, np.float64) for a in (origin, edge_u, edge_v))
+    if not regions:
+        return [(o, eu, ev, spacing)]
+    r, rest = regions[0], regions[1:]
+    lo, hi = np.asarray(r.lo, np.float64), np.asarray(r.hi, np.float64)
+    iu, iv = int(np.argmax(np.abs(eu))), int(np.argmax(np.abs(ev)))
+    inorm = 3 - iu - iv
+    lu, lv = abs(eu[iu]), abs(ev[iv])
+    if not lo[inorm] <= o[inorm] <= hi[inorm]:
+        return _split_rectangle(o, eu, ev, spacing, rest)
+
+    def cut(axis, e, length):  # the box's extent along one edge, metres from the origin, clipped and snapped
+        ends = sorted(((lo[axis] - o[axis]) / e[axis] * length, (hi[axis] - o[axis]) / e[axis] * length))
+        c0 = _snap(min(max(ends[0], 0.0), length), spacing, up=False)
+        c1 = min(_snap(min(max(ends[1], 0.0), length), spacing, up=True), length)
+        return c0, c1
+
+    u0, u1 = cut(iu, eu, lu)
+    v0, v1 = cut(iv, ev, lv)
+    if u1 - u0 <= 1e-9 or v1 - v0 <= 1e-9:
+        return _split_rectangle(o, eu, ev, spacing, rest)
+    du, dv = eu / lu, ev / lv
+    inner = min(spacing, 1.0 / np.sqrt(r.density))
+    pieces = [(0.0, u0, 0.0, lv, spacing), (u1, lu, 0.0, lv, spacing), (u0, u1, 0.0, v0, spacing),
+              (u0, u1, v1, lv, spacing), (u0, u1, v0, v1, inner)]
+    out = []
+    for a0, a1, b0, b1, sp in pieces:
+        if a1 - a0 > 1e-9 and b1 - b0 > 1e-9:
+            out += _split_rectangle(o + a0 * du + b0 * dv, (a1 - a0) * du, (b1 - b0) * dv, sp, rest)
+    return out
 
 
 def _box_faces(lo, hi, with_bottom: bool = False):
@@ -158,15 +219,21 @@ def make_room(size=(8.0, 3.0, 8.0), density: float = 800.0, seed: int = 0,
               lamp_colors=((1.0, 0.82, 0.6), (0.75, 0.85, 1.0)), lamp_intensities=(5.0, 4.0),
               sh_degree: int = 1, ceiling: bool = True, ambient: float = 0.2, thickness_ratio: float = 0.1,
               emitter_count: int = 48, emitter_radius: float = 0.06, emitter_gain: float = 6.0,
-              shadows: bool = True, boxes: list[Box] | None = None, label: str = "room") -> RoomScene:
+              shadows: bool = True, boxes: list[Box] | None = None, detail: list[DetailRegion] | tuple = (),
+              label: str = "room") -> RoomScene:
     """Generate the room (see module docstring). ``density`` is Gaussians per square metre
-    of surface (default 800: ~190k Gaussians for the 8 x 3 x 8 m room with ceiling).
+    of surface (default 800: ~190k Gaussians for the 8 x 3 x 8 m room with ceiling);
+    ``detail``: :class:`DetailRegion` boxes with a higher density (none: the room is uniform).
     Deterministic for ``seed``. Lamps must lie inside the room and outside the furniture."""
     size = np.asarray(size, np.float64)
     if size.shape != (3,) or np.any(size <= 0):
         raise ValueError(f"size must be three positive lengths in metres, got {size.tolist()}")
     if not density > 0:
         raise ValueError(f"density must be > 0 Gaussians per m^2, got {density}")
+    detail = tuple(detail)
+    for r in detail:
+        if not (r.density > 0 and np.all(np.asarray(r.hi, np.float64) >= np.asarray(r.lo, np.float64))):
+            raise ValueError(f"detail region {r}: density must be > 0 and hi >= lo")
     rng = np.random.default_rng(seed)
     sx, sy, sz = size
     hx, hz = sx / 2, sz / 2
@@ -200,10 +267,17 @@ def make_room(size=(8.0, 3.0, 8.0), density: float = 800.0, seed: int = 0,
         for o, eu, ev, nrm in _box_faces(b.lo, b.hi, with_bottom=b.lo[1] > 1e-6):
             rects.append((o, eu, ev, nrm, PART_FURNITURE, b.albedo))
 
-    pts_l, rot_l, alb_l, part_l, nrm_l = [], [], [], [], []
-    for o, eu, ev, nrm, part, albedo in rects:
-        pts, rot, uv = _rectangle(o, eu, ev, nrm, spacing, rng)
+    pts_l, rot_l, alb_l, part_l, nrm_l, sp_l = [], [], [], [], [], []
+    pieces = []  # (rectangle, piece origin, piece edges, spacing): the pieces tile each rectangle
+    for rect in rects:
+        o, eu, ev = rect[:3]
+        pieces += [(rect, po, pu, pv, sp) for po, pu, pv, sp in _split_rectangle(o, eu, ev, spacing, detail)]
+    for (o, _eu, _ev, nrm, part, albedo), po, pu, pv, sp in pieces:
+        pts, rot, uv = _rectangle(po, pu, pv, nrm, sp, rng)
         n = len(pts)
+        # uv from the whole rectangle's origin (the plank pattern is continuous across pieces)
+        off = np.asarray(po, np.float64) - np.asarray(o, np.float64)
+        uv = uv + np.array([off @ pu / np.linalg.norm(pu), off @ pv / np.linalg.norm(pv)])
         alb = np.tile(albedo, (n, 1))
         if part == PART_FLOOR:  # planks 0.2 m wide along x, each a slightly different wood tone
             plank = np.floor(uv[:, 1] / 0.2).astype(np.int64)
@@ -215,6 +289,7 @@ def make_room(size=(8.0, 3.0, 8.0), density: float = 800.0, seed: int = 0,
         alb_l.append(np.clip(alb, 0.02, 0.98))
         part_l.append(np.full(n, part, np.int8))
         nrm_l.append(np.broadcast_to(np.asarray(nrm, np.float64), (n, 3)))
+        sp_l.append(np.full(n, sp))
     pts = np.concatenate(pts_l)
     rot = np.concatenate(rot_l)
     alb = np.concatenate(alb_l)
@@ -230,8 +305,8 @@ def make_room(size=(8.0, 3.0, 8.0), density: float = 800.0, seed: int = 0,
         vis = ~_shadowed(pts + 1e-4 * nrm, lp, boxes) if shadows else np.ones(len(pts), bool)
         irr += (li * ndl * vis / r2)[:, None] * lc
     color = np.clip(alb * irr, 0.0, 1.0)
-    sigma = 0.6 * spacing
-    scales = np.tile([sigma, sigma, thickness_ratio * sigma], (len(pts), 1))
+    sigma = 0.6 * np.concatenate(sp_l)
+    scales = np.stack([sigma, sigma, thickness_ratio * sigma], axis=1)
     opac = np.full(len(pts), 0.97)
 
     # Emitters: tiny bright Gaussians in a ball around each lamp.
