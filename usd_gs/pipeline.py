@@ -493,12 +493,22 @@ class ShotProcessor:
 
     # ------------------------------------------------------------------ run
     def run(self, progress: bool = True) -> ProcessSummary:
+        """Process the shot (module docstring); returns the summary."""
+        from . import jit_warmup
+
+        t_start = time.perf_counter()
+        warmup = jit_warmup.start()  # cold numba cache: compile the later kernels in a second process
+        try:
+            return self._run(t_start, progress)
+        finally:
+            jit_warmup.stop(warmup)
+
+    def _run(self, t_start: float, progress: bool) -> ProcessSummary:
         from pxr import UsdGeom
 
         from .output_author import OutputAuthor
         from .output_layer import OutputLayer
 
-        t_start = time.perf_counter()
         self._open()
         self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
         self._read_static()

@@ -1,0 +1,68 @@
+"""The parallel JIT warm-up (usd_gs.jit_warmup): it must fill exactly the cache entries that the
+main job needs after light estimation, and only start when the numba cache is cold."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+from usd_gs import jit_warmup
+
+_SIGNATURE_DIFF = textwrap.dedent("""
+    import importlib, pkgutil, sys
+    import numba_kernels
+    from numba.core.registry import CPUDispatcher
+
+    def signatures():
+        out = {}
+        for m in pkgutil.iter_modules(numba_kernels.__path__):
+            mod = importlib.import_module("numba_kernels." + m.name)
+            for k, v in vars(mod).items():
+                if isinstance(v, CPUDispatcher) and v.__module__ == mod.__name__:
+                    out[m.name + "." + k] = set(map(str, v.signatures))
+        return out
+
+    from usd_gs import jit_warmup
+    jit_warmup.warm_up()
+    before = signatures()
+    from usd_gs.cli import main
+    assert main(["process", sys.argv[1], "-o", sys.argv[2], "--frames", "1-2", "-q"]) == 0
+    after = signatures()
+    print(" ".join(sorted(k for k in after if after[k] - before.get(k, set()))))
+""")
+
+
+def test_warm_up_types_match_the_main_job(quick_demo, tmp_path):
+    """In a fresh process, after warm_up() the main job dispatches no kernel signature the
+    warm-up did not already create, except the light-estimation kernels it runs first itself."""
+    env = dict(os.environ, USDGS_JIT_WARMUP="0")
+    r = subprocess.run([sys.executable, "-c", _SIGNATURE_DIFF, str(quick_demo), str(tmp_path / "o.usdc")],
+                       capture_output=True, text=True, env=env, check=True)
+    extra = set(r.stdout.split())
+    assert extra, "the main job must at least add the light-estimation kernels"
+    assert all(k.split(".")[0] in ("light_estimation", "grid_neighbours") for k in extra), extra
+
+
+def test_starts_only_on_a_cold_cache(tmp_path, monkeypatch):
+    from usd_gs.render import render_cube_faces
+    from usd_gs.synthetic import random_gaussians
+
+    render_cube_faces(random_gaussians(8, 0), (0.0, 0.0, 0.0), 8)  # compiles (and caches) the sentinel kernel
+    assert not jit_warmup.cache_is_cold()
+    assert jit_warmup.start() is None
+    monkeypatch.setenv("USDGS_JIT_WARMUP", "0")
+    assert jit_warmup.start() is None
+    jit_warmup.stop(None)
+    # an empty cache directory is cold
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nbcache"))
+    r = subprocess.run([sys.executable, "-c", "from usd_gs import jit_warmup; print(jit_warmup.cache_is_cold())"],
+                       capture_output=True, text=True, env=env, check=True)
+    assert r.stdout.strip() == "True"
+
+
+def test_stop_ends_a_running_process():
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    jit_warmup.stop(proc)
+    assert proc.poll() is not None
