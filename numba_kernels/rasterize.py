@@ -93,7 +93,7 @@ TILE = 16
 _MX, _MY, _CA, _CB, _CC, _OP, _R, _G, _B, _Z, _J0, _J1, _I0, _I1, _QC = range(15)
 _NF = 16
 _GATHER = 64  # records copied per batch in _blend_tile
-_CHUNK = 256  # Gaussians per call of the parallel loops' bodies (_cull_range, _write_range)
+_CHUNK = 256  # Gaussians per call of the parallel loop's body in _write_entries (_write_range)
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -224,60 +224,6 @@ def _sh_color(sh, g, dx, dy, dz):
     return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
 
 
-@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-def _cull_one(g, positions, scales, opacities, use_mask, include, cams, ncam, width, height, dilation):
-    """Camera bit mask of Gaussian g (see :func:`_cull`)."""
-    if use_mask and not include[g]:
-        return 0
-    op = np.float64(opacities[g])
-    if not op >= ALPHA_MIN:  # also drops NaN
-        return 0
-    op = min(1.0, op)
-    px = np.float64(positions[g, 0])
-    py = np.float64(positions[g, 1])
-    pz = np.float64(positions[g, 2])
-    bits = 0
-    qcut = -1.0
-    smax = 0.0
-    for k in range(ncam):
-        c = cams[k]
-        z = c[6] * px + c[7] * py + c[8] * pz + c[11]
-        if not (z > c[16] and z <= c[17]):
-            continue
-        x = c[0] * px + c[1] * py + c[2] * pz + c[9]
-        y = c[3] * px + c[4] * py + c[5] * pz + c[10]
-        iz = 1.0 / z
-        u = c[12] * x * iz + c[14]
-        v = c[13] * y * iz + c[15]
-        if u >= 0.0 and u <= width and v >= 0.0 and v <= height:
-            bits |= np.int64(1) << k
-            continue
-        if qcut < 0.0:
-            qcut = _support_q(op)
-            smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
-                                                          abs(np.float64(scales[g, 2]))))
-        # lambda_max(J V Sigma V^T J^T) <= smax^2 ||J||_F^2 bounds the bounding-box half-extent
-        tx = min(c[19], max(c[18], x * iz))
-        ty = min(c[21], max(c[20], y * iz))
-        jf2 = (c[12] * iz) ** 2 * (1.0 + tx * tx) + (c[13] * iz) ** 2 * (1.0 + ty * ty)
-        eb = math.sqrt(qcut * (smax * smax * jf2 + dilation)) * (1.0 + 1e-6) + 1e-6
-        j0, j1 = _pixel_range(u, eb, width)
-        i0, i1 = _pixel_range(v, eb, height)
-        if j1 >= j0 and i1 >= i0:
-            bits |= np.int64(1) << k
-    return bits
-
-
-@njit(cache=True, fastmath=False, error_model="numpy")
-def _cull_range(g0, g1, positions, scales, opacities, use_mask, include, cams, ncam, width, height, dilation, vis):
-    """``vis[g]`` for g in [g0, g1): one chunk of :func:`_cull`'s parallel loop. The loop body is a
-    called function, not inlined into the parallel kernel, because numba types and optimises a
-    parallel loop's body twice (measured: half the kernel's compile time); chunks keep the call
-    overhead negligible."""
-    for g in range(g0, g1):
-        vis[g] = _cull_one(g, positions, scales, opacities, use_mask, include, cams, ncam, width, height, dilation)
-
-
 @njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
 def _cull(positions, scales, opacities, include, cams, width, height, dilation, vis):
     """Fill ``vis`` (N,) int64: per Gaussian, the bit mask of the cameras whose image its support
@@ -289,9 +235,47 @@ def _cull(positions, scales, opacities, include, cams, width, height, dilation, 
     n = positions.shape[0]
     ncam = cams.shape[0]
     use_mask = include.shape[0] == n
-    for ch in prange((n + _CHUNK - 1) // _CHUNK):
-        _cull_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, scales, opacities,
-                    use_mask, include, cams, ncam, width, height, dilation, vis)
+    for g in prange(n):
+        vis[g] = 0
+        if use_mask and not include[g]:
+            continue
+        op = np.float64(opacities[g])
+        if not op >= ALPHA_MIN:  # also drops NaN
+            continue
+        op = min(1.0, op)
+        px = np.float64(positions[g, 0])
+        py = np.float64(positions[g, 1])
+        pz = np.float64(positions[g, 2])
+        bits = 0
+        qcut = -1.0
+        smax = 0.0
+        for k in range(ncam):
+            c = cams[k]
+            z = c[6] * px + c[7] * py + c[8] * pz + c[11]
+            if not (z > c[16] and z <= c[17]):
+                continue
+            x = c[0] * px + c[1] * py + c[2] * pz + c[9]
+            y = c[3] * px + c[4] * py + c[5] * pz + c[10]
+            iz = 1.0 / z
+            u = c[12] * x * iz + c[14]
+            v = c[13] * y * iz + c[15]
+            if u >= 0.0 and u <= width and v >= 0.0 and v <= height:
+                bits |= np.int64(1) << k
+                continue
+            if qcut < 0.0:
+                qcut = _support_q(op)
+                smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
+                                                              abs(np.float64(scales[g, 2]))))
+            # lambda_max(J V Sigma V^T J^T) <= smax^2 ||J||_F^2 bounds the bounding-box half-extent
+            tx = min(c[19], max(c[18], x * iz))
+            ty = min(c[21], max(c[20], y * iz))
+            jf2 = (c[12] * iz) ** 2 * (1.0 + tx * tx) + (c[13] * iz) ** 2 * (1.0 + ty * ty)
+            eb = math.sqrt(qcut * (smax * smax * jf2 + dilation)) * (1.0 + 1e-6) + 1e-6
+            j0, j1 = _pixel_range(u, eb, width)
+            i0, i1 = _pixel_range(v, eb, height)
+            if j1 >= j0 and i1 >= i0:
+                bits |= np.int64(1) << k
+        vis[g] = bits
 
 
 @njit(cache=True, error_model="numpy")
@@ -385,13 +369,14 @@ def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_
 def _write_range(g0, g1, positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
                  cam_pos, width, height, dilation, antialiased, rec, info, depth32):
     """Entries of Gaussians g0..g1-1: one chunk of :func:`_write_entries`'s parallel loop (a called
-    function for compile time, see :func:`_cull_range`)."""
+    function, not an inlined body: numba types and optimises a parallel loop's body twice (measured: half
+    the kernel's compile time); chunks keep the call overhead negligible)."""
     for g in range(g0, g1):
         bits = vis[g]
         if bits == 0:
             continue
-        _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp,
-                        cam_pos, width, height, dilation, antialiased, rec, info, depth32)
+        _write_gaussian(np.uint64(g), bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr,
+                        clamp, cam_pos, width, height, dilation, antialiased, rec, info, depth32)
 
 
 @njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
