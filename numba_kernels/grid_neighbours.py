@@ -30,6 +30,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import prange_only
+
 _P1 = np.int64(73856093)
 _P2 = np.int64(19349663)
 _P3 = np.int64(83492791)
@@ -83,7 +85,7 @@ def _hash(ix, iy, iz, mask):
     return ((ix * _P1) ^ (iy * _P2) ^ (iz * _P3)) & mask
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _cell_keys(points, origin, inv_cell, mask, cells, keys):
     for i in prange(points.shape[0]):
         ix = _cell_coord(points[i, 0], origin[0], inv_cell)
@@ -147,7 +149,7 @@ def build_grid(points: np.ndarray, cell_size: float) -> HashGrid:
     return HashGrid(spoints, origin, cell_size, mask, scells, start, order, pure)
 
 
-@njit(inline="always")
+@njit(cache=True, fastmath=False)
 def _visit(points, origin, inv_cell, cell_size, mask, coords, start, order, pure, qx, qy, qz, r2, in2,
            values, bsum, out_idx, mode):
     """Visit the neighbours of (qx, qy, qz); mode 0: count, 1: write input indices, 2: sum values.
@@ -221,7 +223,7 @@ def _visit(points, origin, inv_cell, cell_size, mask, coords, start, order, pure
     return count, total
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _bucket_sums(values, start):
     nb = start.shape[0] - 1
     out = np.zeros(nb)
@@ -233,30 +235,44 @@ def _bucket_sums(values, start):
     return out
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _query_kernel(points, origin, cell_size, mask, coords, start, order, pure, queries, qorder, radius, inner,
-                  values, bsum, offsets, mode):
-    """mode 0: counts; 2: sums and counts; 1: fill ``out`` at ``offsets`` (sorted per query)."""
+                  values, bsum, mode):
+    """mode 0: counts; 2: sums and counts. Returns (counts (Q,) int64, sums (Q,) float64)."""
     q = queries.shape[0]
     counts = np.zeros(q, dtype=np.int64)
     sums = np.zeros(q, dtype=np.float64)
-    out = np.empty(offsets[q] if mode == 1 else 0, dtype=np.int64)
     inv = 1.0 / cell_size
     r2 = radius * radius
     in2 = inner * inner
+    seg = np.empty(0, dtype=np.int64)
     for ii in prange(q):
         i = qorder[ii]
-        if mode == 1:
-            seg = out[offsets[i]:offsets[i + 1]]
-        else:
-            seg = out[0:0]
         c, s = _visit(points, origin, inv, cell_size, mask, coords, start, order, pure,
                       queries[i, 0], queries[i, 1], queries[i, 2], r2, in2, values, bsum, seg, mode)
         counts[i] = c
         sums[i] = s
-        if mode == 1:
-            seg.sort()
-    return counts, sums, out
+    return counts, sums
+
+
+@njit(parallel=prange_only(), cache=True, fastmath=False)
+def _list_kernel(points, origin, cell_size, mask, coords, start, order, pure, queries, qorder, radius, inner,
+                 offsets):
+    """Neighbour lists (mode 1 of ``_visit``): fills and returns ``out`` (offsets[Q],) int64,
+    sorted per query. A separate kernel so that count/sum users never compile the sort."""
+    q = queries.shape[0]
+    out = np.empty(offsets[q], dtype=np.int64)
+    inv = 1.0 / cell_size
+    r2 = radius * radius
+    in2 = inner * inner
+    nov = np.zeros(0)
+    for ii in prange(q):
+        i = qorder[ii]
+        seg = out[offsets[i]:offsets[i + 1]]
+        _visit(points, origin, inv, cell_size, mask, coords, start, order, pure,
+               queries[i, 0], queries[i, 1], queries[i, 2], r2, in2, nov, nov, seg, 1)
+        seg.sort()
+    return out
 
 
 def _queries(grid, queries):
@@ -278,11 +294,14 @@ def _check_radii(radius, inner):
 def _run(grid, queries, radius, inner, mode, values=None, offsets=None):
     g = grid
     q, qorder = _queries(g, queries)
+    args = (g.points, g.origin, g.cell_size, np.int64(g.mask), g.cell_keys, g.bucket_start, g.order, g.pure, q,
+            qorder, radius, inner)
+    if mode == 1:
+        return None, None, _list_kernel(*args, offsets)
     vals = np.zeros(0) if values is None else values.values
     bsum = np.zeros(0) if values is None else values.bucket_sums
-    offs = np.zeros(q.shape[0] + 1, dtype=np.int64) if offsets is None else offsets
-    return _query_kernel(g.points, g.origin, g.cell_size, np.int64(g.mask), g.cell_keys, g.bucket_start, g.order,
-                         g.pure, q, qorder, radius, inner, vals, bsum, offs, mode)
+    counts, sums = _query_kernel(*args, vals, bsum, mode)
+    return counts, sums, None
 
 
 def radius_count(grid: HashGrid, queries: np.ndarray, radius: float, inner: float = 0.0) -> np.ndarray:

@@ -71,6 +71,7 @@ import numpy as np
 from numba import njit, prange
 
 from .grid_neighbours import build_grid, grid_values, radius_sum
+from .jit_options import prange_only
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
@@ -92,6 +93,8 @@ LUMA = (0.2126, 0.7152, 0.0722)
 STATUS_OUTSIDE = 0  # outside the ROI or below min_opacity
 STATUS_IN_ROI = 1
 STATUS_NONFINITE = -1  # position, opacity or an SH coefficient is NaN/Inf
+
+_CHUNK = 256  # Gaussians per call of score_cues's parallel loop body
 
 
 @njit(inline="always")
@@ -147,7 +150,73 @@ def _unit(dx, dy, dz):
     return 0.0, 0.0, 1.0
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(inline="always")
+def _cues_one(i, positions, opacities, sh, deg, centroid, viewpoints, r2, min_opacity, max_weight,
+              status, mean_y, max_y, stability, dominance, lum):
+    """Steps 1-3 for Gaussian i (see :func:`score_cues`)."""
+    k = sh.shape[1]
+    nv = viewpoints.shape[0]
+    inv4pi = 1.0 / (4.0 * math.pi)
+    px = np.float64(positions[i, 0])
+    py = np.float64(positions[i, 1])
+    pz = np.float64(positions[i, 2])
+    a = np.float64(opacities[i])
+    finite = np.isfinite(px) and np.isfinite(py) and np.isfinite(pz) and np.isfinite(a)
+    e_view = 0.0
+    for j in range(k):
+        for c in range(3):
+            s = np.float64(sh[i, j, c])
+            if not np.isfinite(s):
+                finite = False
+            if j > 0:
+                e_view += s * s
+    if not finite:
+        status[i] = STATUS_NONFINITE
+        return
+    dx = px - centroid[0]
+    dy = py - centroid[1]
+    dz = pz - centroid[2]
+    if dx * dx + dy * dy + dz * dz > r2 or not a >= min_opacity:
+        return
+    status[i] = STATUS_IN_ROI
+    mu = 0.0  # Welford running mean / sum of squared deviations (stable, one pass)
+    m2 = 0.0
+    m_y = 0.0
+    for v in range(nv):
+        ux, uy, uz = _unit(px - viewpoints[v, 0], py - viewpoints[v, 1], pz - viewpoints[v, 2])
+        r, g, b = _sh_rgb(sh, i, deg, ux, uy, uz)
+        y = LUMA[0] * max(0.0, r) + LUMA[1] * max(0.0, g) + LUMA[2] * max(0.0, b)
+        d = y - mu
+        mu += d / (v + 1)
+        m2 += d * (y - mu)
+        if y > m_y:
+            m_y = y
+    std = math.sqrt(max(m2, 0.0) / nv)
+    st = 1.0 - std / (mu + 1e-12)
+    stability[i] = min(1.0, max(0.0, st))
+    e_dc = 0.0
+    for c in range(3):
+        dc = 0.5 + C0 * np.float64(sh[i, 0, c])
+        e_dc += dc * dc
+    tot = e_dc + e_view * inv4pi
+    dominance[i] = e_dc / tot if tot > 0.0 else 0.0
+    mean_y[i] = mu
+    max_y[i] = m_y
+    lum[i] = (1.0 - max_weight) * mu + max_weight * m_y
+
+
+@njit(cache=True, fastmath=False)
+def _cues_range(i0, i1, positions, opacities, sh, deg, centroid, viewpoints, r2, min_opacity, max_weight,
+                status, mean_y, max_y, stability, dominance, lum):
+    """Gaussians i0..i1-1: one chunk of :func:`score_cues`'s parallel loop. A called function, not
+    an inlined body: numba types and optimises a parallel loop's body twice (measured: half the
+    kernel's compile time); chunks keep the call overhead negligible."""
+    for i in range(i0, i1):
+        _cues_one(i, positions, opacities, sh, deg, centroid, viewpoints, r2, min_opacity, max_weight,
+                  status, mean_y, max_y, stability, dominance, lum)
+
+
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def score_cues(positions, opacities, sh, centroid, viewpoints, roi_radius, min_opacity, max_weight):
     """Steps 1-3: per-Gaussian status and photometric cues.
 
@@ -159,7 +228,6 @@ def score_cues(positions, opacities, sh, centroid, viewpoints, roi_radius, min_o
     n = positions.shape[0]
     k = sh.shape[1]
     deg = 0 if k < 4 else (1 if k < 9 else (2 if k < 16 else 3))
-    nv = viewpoints.shape[0]
     status = np.zeros(n, dtype=np.int8)
     mean_y = np.zeros(n)
     max_y = np.zeros(n)
@@ -167,58 +235,14 @@ def score_cues(positions, opacities, sh, centroid, viewpoints, roi_radius, min_o
     dominance = np.zeros(n)
     lum = np.zeros(n)
     r2 = roi_radius * roi_radius
-    inv4pi = 1.0 / (4.0 * math.pi)
-    for i in prange(n):
-        px = np.float64(positions[i, 0])
-        py = np.float64(positions[i, 1])
-        pz = np.float64(positions[i, 2])
-        a = np.float64(opacities[i])
-        finite = np.isfinite(px) and np.isfinite(py) and np.isfinite(pz) and np.isfinite(a)
-        e_view = 0.0
-        for j in range(k):
-            for c in range(3):
-                s = np.float64(sh[i, j, c])
-                if not np.isfinite(s):
-                    finite = False
-                if j > 0:
-                    e_view += s * s
-        if not finite:
-            status[i] = STATUS_NONFINITE
-            continue
-        dx = px - centroid[0]
-        dy = py - centroid[1]
-        dz = pz - centroid[2]
-        if dx * dx + dy * dy + dz * dz > r2 or not a >= min_opacity:
-            continue
-        status[i] = STATUS_IN_ROI
-        mu = 0.0  # Welford running mean / sum of squared deviations (stable, one pass)
-        m2 = 0.0
-        m_y = 0.0
-        for v in range(nv):
-            ux, uy, uz = _unit(px - viewpoints[v, 0], py - viewpoints[v, 1], pz - viewpoints[v, 2])
-            r, g, b = _sh_rgb(sh, i, deg, ux, uy, uz)
-            y = LUMA[0] * max(0.0, r) + LUMA[1] * max(0.0, g) + LUMA[2] * max(0.0, b)
-            d = y - mu
-            mu += d / (v + 1)
-            m2 += d * (y - mu)
-            if y > m_y:
-                m_y = y
-        std = math.sqrt(max(m2, 0.0) / nv)
-        st = 1.0 - std / (mu + 1e-12)
-        stability[i] = min(1.0, max(0.0, st))
-        e_dc = 0.0
-        for c in range(3):
-            dc = 0.5 + C0 * np.float64(sh[i, 0, c])
-            e_dc += dc * dc
-        tot = e_dc + e_view * inv4pi
-        dominance[i] = e_dc / tot if tot > 0.0 else 0.0
-        mean_y[i] = mu
-        max_y[i] = m_y
-        lum[i] = (1.0 - max_weight) * mu + max_weight * m_y
+    for ch in prange((n + _CHUNK - 1) // _CHUNK):
+        _cues_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, opacities, sh, deg,
+                    centroid, viewpoints, r2, min_opacity, max_weight, status, mean_y, max_y, stability, dominance,
+                    lum)
     return status, mean_y, max_y, stability, dominance, lum
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def base_scores(status, lum, stability, dominance, opacities, knee, stability_power, dominance_power):
     """Steps 4-5: base scores from the soft-clipped and from the raw luminance cue.
 
@@ -259,11 +283,19 @@ def select_tail(scores: np.ndarray, n_tail: int) -> np.ndarray:
     return np.sort(np.concatenate([above, equal])).astype(np.int64)
 
 
-@njit(cache=True, fastmath=False)
 def greedy_nms(positions, final, k, min_distance):
-    """Step 8: positions (M, 3) float, final (M,) scores. Returns accepted rows (<= k), best first."""
-    m = final.shape[0]
-    order = np.argsort(-final, kind="mergesort")
+    """Step 8: positions (M, 3) float, final (M,) scores. Returns accepted rows (<= k), best first.
+
+    The visiting order (decreasing score, ties by lower index) is a stable NumPy argsort: numba's
+    own mergesort costs about 1 s of compile time for a few microseconds of work."""
+    order = np.argsort(-np.asarray(final), kind="stable").astype(np.int64)
+    return _greedy_nms_ordered(positions, order, int(k), float(min_distance))
+
+
+@njit(cache=True, fastmath=False)
+def _greedy_nms_ordered(positions, order, k, min_distance):
+    """Greedy NMS visiting rows in ``order`` (M,) int64 (see :func:`greedy_nms`)."""
+    m = order.shape[0]
     chosen = np.empty(min(k, m), dtype=np.int64)
     nc = 0
     d2min = min_distance * min_distance

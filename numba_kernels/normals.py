@@ -37,6 +37,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import prange_only
 from .quaternion import quat_to_rotation
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791
@@ -125,7 +126,7 @@ def _neighbours_of(i, pos, origin, radius, mask, order, start, cellkey, buf):
     return cnt
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _count_kernel(sample, pos, origin, radius, mask, order, start, cellkey, max_nb, out):
     for s in prange(sample.shape[0]):
         buf = np.empty(max_nb, dtype=np.int64)
@@ -155,7 +156,66 @@ def quat_axis_smallest(q, s):
     return r02, r12, r22, ratio
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)
+def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
+                       axis, ratio, centroid, count, cov, nbr):
+    """One chunk of :func:`_local_stats_kernel` (the parallel loop's body as a call: an inlined body is typed twice)."""
+    buf = np.empty(max_nb, dtype=np.int64)
+    qd = np.empty(4, dtype=np.float64)
+    sd = np.empty(3, dtype=np.float64)
+    for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
+        for c in range(4):
+            qd[c] = quat[i, c]
+        for c in range(3):
+            sd[c] = scales[i, c]
+        ax, ay, az, rt = quat_axis_smallest(qd, sd)
+        axis[i, 0] = ax
+        axis[i, 1] = ay
+        axis[i, 2] = az
+        ratio[i] = rt
+        cnt = _neighbours_of(i, pos, origin, radius, mask, order, start, cellkey, buf)
+        count[i] = cnt
+        for t in range(nbr.shape[1]):  # first neighbours, kept for the consistency passes
+            nbr[i, t] = buf[t] if t < cnt else -1
+        wsum = 0.0
+        mx = 0.0
+        my = 0.0
+        mz = 0.0
+        for t in range(cnt):
+            j = buf[t]
+            wj = max(np.float64(opac[j]), 1e-6)
+            wsum += wj
+            mx += wj * pos[j, 0]
+            my += wj * pos[j, 1]
+            mz += wj * pos[j, 2]
+        for c in range(6):
+            cov[i, c] = 0.0
+        if cnt == 0:
+            centroid[i, 0] = pos[i, 0]
+            centroid[i, 1] = pos[i, 1]
+            centroid[i, 2] = pos[i, 2]
+            continue
+        mx /= wsum
+        my /= wsum
+        mz /= wsum
+        centroid[i, 0] = mx
+        centroid[i, 1] = my
+        centroid[i, 2] = mz
+        for t in range(cnt):
+            j = buf[t]
+            wj = max(np.float64(opac[j]), 1e-6)
+            d0 = pos[j, 0] - mx
+            d1 = pos[j, 1] - my
+            d2 = pos[j, 2] - mz
+            cov[i, 0] += wj * d0 * d0
+            cov[i, 1] += wj * d0 * d1
+            cov[i, 2] += wj * d0 * d2
+            cov[i, 3] += wj * d1 * d1
+            cov[i, 4] += wj * d1 * d2
+            cov[i, 5] += wj * d2 * d2
+
+
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def _local_stats_kernel(pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
                         axis, ratio, centroid, count, cov, nbr):
     """Per Gaussian: smallest axis and scale ratio, opacity-weighted neighbour centroid,
@@ -163,62 +223,11 @@ def _local_stats_kernel(pos, quat, scales, opac, origin, radius, mask, order, st
     n = pos.shape[0]
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for ch in prange(n_chunks):
-        buf = np.empty(max_nb, dtype=np.int64)
-        qd = np.empty(4, dtype=np.float64)
-        sd = np.empty(3, dtype=np.float64)
-        for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
-            for c in range(4):
-                qd[c] = quat[i, c]
-            for c in range(3):
-                sd[c] = scales[i, c]
-            ax, ay, az, rt = quat_axis_smallest(qd, sd)
-            axis[i, 0] = ax
-            axis[i, 1] = ay
-            axis[i, 2] = az
-            ratio[i] = rt
-            cnt = _neighbours_of(i, pos, origin, radius, mask, order, start, cellkey, buf)
-            count[i] = cnt
-            for t in range(nbr.shape[1]):  # first neighbours, kept for the consistency passes
-                nbr[i, t] = buf[t] if t < cnt else -1
-            wsum = 0.0
-            mx = 0.0
-            my = 0.0
-            mz = 0.0
-            for t in range(cnt):
-                j = buf[t]
-                wj = max(np.float64(opac[j]), 1e-6)
-                wsum += wj
-                mx += wj * pos[j, 0]
-                my += wj * pos[j, 1]
-                mz += wj * pos[j, 2]
-            for c in range(6):
-                cov[i, c] = 0.0
-            if cnt == 0:
-                centroid[i, 0] = pos[i, 0]
-                centroid[i, 1] = pos[i, 1]
-                centroid[i, 2] = pos[i, 2]
-                continue
-            mx /= wsum
-            my /= wsum
-            mz /= wsum
-            centroid[i, 0] = mx
-            centroid[i, 1] = my
-            centroid[i, 2] = mz
-            for t in range(cnt):
-                j = buf[t]
-                wj = max(np.float64(opac[j]), 1e-6)
-                d0 = pos[j, 0] - mx
-                d1 = pos[j, 1] - my
-                d2 = pos[j, 2] - mz
-                cov[i, 0] += wj * d0 * d0
-                cov[i, 1] += wj * d0 * d1
-                cov[i, 2] += wj * d0 * d2
-                cov[i, 3] += wj * d1 * d1
-                cov[i, 4] += wj * d1 * d2
-                cov[i, 5] += wj * d2 * d2
+        _local_stats_chunk(np.int64(ch), n, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey,
+                           max_nb, axis, ratio, centroid, count, cov, nbr)
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def _consistency_kernel(pos, opac, nin, nbr, nout):
     """One Jacobi pass: flip n_i when the opacity-weighted vote of tangential neighbours is < 0."""
     n = pos.shape[0]
@@ -330,7 +339,7 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
     return (res, fb) if return_fallback else res
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _rotate_kernel(quat, vec, inverse, out):
     for i in prange(quat.shape[0]):
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(

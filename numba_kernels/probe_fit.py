@@ -25,12 +25,13 @@ import numpy as np
 from numba import njit, prange
 
 from .cubemap_dirs import cube_face_directions, cube_face_solid_angles
+from .jit_options import prange_only
 from .sh_real import MAX_DEGREE, NORM, num_coeffs, sh_eval_dir
 
 _CHUNK = 1024
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _normal_equations_kernel(dirs, weights, values, degree, norm, gram_parts, rhs_parts):
     n = dirs.shape[0]
     k = (degree + 1) * (degree + 1)
@@ -87,7 +88,7 @@ def fit_sh_lstsq(dirs, weights, values, degree: int, lam: float = 1e-3) -> np.nd
     return np.linalg.solve(gram, rhs)
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def _apply_operator(op, y, out):
     """``out = op @ y`` for op (K, N) float64 and y (N, C) float32/64, float64 accumulation."""
     k, n = op.shape

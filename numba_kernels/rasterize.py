@@ -62,6 +62,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import prange_only
 from .quaternion import quat_to_rotation
 
 SH_C0 = 0.28209479177387814
@@ -92,6 +93,7 @@ TILE = 16
 _MX, _MY, _CA, _CB, _CC, _OP, _R, _G, _B, _Z, _J0, _J1, _I0, _I1, _QC = range(15)
 _NF = 16
 _GATHER = 64  # records copied per batch in _blend_tile
+_CHUNK = 256  # Gaussians per call of the parallel loop's body in _write_entries (_write_range)
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -222,7 +224,7 @@ def _sh_color(sh, g, dx, dy, dz):
     return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
 
 
-@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+@njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
 def _cull(positions, scales, opacities, include, cams, width, height, dilation, vis):
     """Fill ``vis`` (N,) int64: per Gaussian, the bit mask of the cameras whose image its support
     may touch (conservative).
@@ -363,7 +365,21 @@ def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_
         e += 1
 
 
-@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _write_range(g0, g1, positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
+                 cam_pos, width, height, dilation, antialiased, rec, info, depth32):
+    """Entries of Gaussians g0..g1-1: one chunk of :func:`_write_entries`'s parallel loop (a called
+    function, not an inlined body: numba types and optimises a parallel loop's body twice (measured: half
+    the kernel's compile time); chunks keep the call overhead negligible)."""
+    for g in range(g0, g1):
+        bits = vis[g]
+        if bits == 0:
+            continue
+        _write_gaussian(np.uint64(g), bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr,
+                        clamp, cam_pos, width, height, dilation, antialiased, rec, info, depth32)
+
+
+@njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
 def _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
                    cam_pos, width, height, dilation, antialiased, rec, info, depth32):
     """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order.
@@ -373,15 +389,13 @@ def _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, 
     and depth32 (M,) float32 view depth (inf when rejected).
     """
     n = positions.shape[0]
-    for g in prange(n):
-        bits = vis[g]
-        if bits == 0:
-            continue
-        _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp,
-                        cam_pos, width, height, dilation, antialiased, rec, info, depth32)
+    for ch in prange((n + _CHUNK - 1) // _CHUNK):
+        _write_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, quats, scales,
+                     opacities, sh, vis, off, view_rot, view_t, intr, clamp, cam_pos, width, height, dilation,
+                     antialiased, rec, info, depth32)
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")  # serial: see jit_options.SERIAL_NOTE
 def _bin_tiles(info, ncam, tiles_x, tiles_y, tile, nchunks):
     """Stable counting sort of entries into tiles (per-chunk histograms, prefix sum, scatter).
 
@@ -450,7 +464,8 @@ def _sort_by_depth(dkey, idx):
     count = np.empty(257, np.int64)
     for shift in range(0, 32, 8):
         sh = np.uint32(shift)
-        count[:] = 0
+        for b in range(257):
+            count[b] = 0
         for a in range(n):
             count[((dkey[a] >> sh) & np.uint32(255)) + 1] += 1
         skip = False
@@ -468,14 +483,30 @@ def _sort_by_depth(dkey, idx):
             count[d] = pos + 1
             dk2[pos] = dkey[a]
             ix2[pos] = idx[a]
-        dkey[:] = dk2
-        idx[:] = ix2
+        for a in range(n):  # element loops: slice assignment pulls in numba's costly shape-error path
+            dkey[a] = dk2[a]
+            idx[a] = ix2[a]
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
-def _blend_tile(rec, depth_bits, tile_list, s0, cnt, k, x0, y0, x1, y1, tile, color, trans, depth):
-    """Blend one tile's ``cnt`` entries ``tile_list[s0:s0+cnt]`` into camera k's pixels
-    [y0..y1] x [x0..x1]. Returns (entries processed, pixel evaluations)."""
+def _blend_tile(rec, depth_bits, tile_start, tile_list, t, per_cam, tiles_x, width, height, tile, color, trans,
+                depth, processed, evals):
+    """Blend tile t's entries ``tile_list[tile_start[t]:tile_start[t+1]]`` into its camera's pixels;
+    store the entries processed and pixel evaluations in ``processed[t]`` and ``evals[t]``.
+    (The whole body of :func:`_blend`'s parallel loop, so that numba's second typing of that
+    body, as an outlined gufunc, stays trivial.)"""
+    s0 = tile_start[t]
+    cnt = tile_start[t + 1] - s0
+    if cnt == 0:
+        return
+    k = t // per_cam
+    tt = t - k * per_cam
+    ty = tt // tiles_x
+    tx = tt - ty * tiles_x
+    x0 = tx * tile
+    y0 = ty * tile
+    x1 = min(x0 + tile, width) - 1
+    y1 = min(y0 + tile, height) - 1
     tw = x1 - x0 + 1
     npix = tw * (y1 - y0 + 1)
     dkey = np.empty(cnt, np.uint32)
@@ -569,41 +600,26 @@ def _blend_tile(rec, depth_bits, tile_list, s0, cnt, k, x0, y0, x1, y1, tile, co
             trans[k, i, j] = T[p]
             wsum = 1.0 - T[p]
             depth[k, i, j] = D[p] / wsum if wsum > 0.0 else 0.0
-    return s, nev
+    processed[t] = s
+    evals[t] = nev
 
 
-@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
-def _blend(rec, depth_bits, tile_start, tile_list, order, ncam, width, height, tiles_x, tiles_y, tile):
+@njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
+def _blend(rec, depth_bits, tile_start, tile_list, order, tiles_x, tiles_y, tile, color, trans, depth, processed,
+           evals):
     """Per tile (prange): order its entries by (float32 depth, entry index), blend front to back.
 
-    Returns colour (K,H,W,3), transmittance (K,H,W), expected depth (K,H,W) float32 and the number
-    of entries each tile processed before all its pixels terminated and of pixel evaluations (T,) each.
+    Fills colour (K,H,W,3) (zeros on entry), transmittance (K,H,W) (ones), expected depth (K,H,W)
+    (zeros) float32 and, per tile (T,) int64, the number of entries processed before all its pixels
+    terminated and of pixel evaluations (tiles without entries are left unchanged: zero).
     """
-    color = np.zeros((ncam, height, width, 3), np.float32)
-    trans = np.ones((ncam, height, width), np.float32)
-    depth = np.zeros((ncam, height, width), np.float32)  # expected depth
+    height = color.shape[1]
+    width = color.shape[2]
     per_cam = tiles_x * tiles_y
     ntiles = tile_start.shape[0] - 1
-    processed = np.zeros(ntiles, np.int64)
-    evals = np.zeros(ntiles, np.int64)
     for oi in prange(ntiles):
-        t = order[oi]
-        s0 = tile_start[t]
-        cnt = tile_start[t + 1] - s0
-        if cnt == 0:
-            continue
-        k = t // per_cam
-        tt = t - k * per_cam
-        ty = tt // tiles_x
-        tx = tt - ty * tiles_x
-        x0 = tx * tile
-        y0 = ty * tile
-        x1 = min(x0 + tile, width) - 1
-        y1 = min(y0 + tile, height) - 1
-        s, nev = _blend_tile(rec, depth_bits, tile_list, s0, cnt, k, x0, y0, x1, y1, tile, color, trans, depth)
-        processed[t] = s
-        evals[t] = nev
-    return color, trans, depth, processed, evals
+        _blend_tile(rec, depth_bits, tile_start, tile_list, order[oi], per_cam, tiles_x, width, height, tile, color,
+                    trans, depth, processed, evals)
 
 
 def _aligned_empty(shape, dtype, align=64):
@@ -687,9 +703,14 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
                    width, height, dilation, bool(antialiased), rec, info, depth32)
     tile_start, tile_list = _bin_tiles(info, ncam, tiles_x, tiles_y, tile, 16)
     ntiles = ncam * tiles_x * tiles_y
+    color = np.zeros((ncam, height, width, 3), np.float32)
+    trans = np.ones((ncam, height, width), np.float32)
+    depth = np.zeros((ncam, height, width), np.float32)  # expected depth
+    processed = np.zeros(ntiles, np.int64)
+    evals = np.zeros(ntiles, np.int64)
     # positive float32 depths order like their bit patterns
-    color, trans, depth, processed, evals = _blend(rec, depth32.view(np.uint32), tile_start, tile_list,
-                                           _tile_order(ntiles), ncam, width, height, tiles_x, tiles_y, tile)
+    _blend(rec, depth32.view(np.uint32), tile_start, tile_list, _tile_order(ntiles), tiles_x, tiles_y, tile, color,
+           trans, depth, processed, evals)
     stats = {"culled_pass": int(off[-1]), "entries": int(np.count_nonzero(info[:, 0] >= 0)),
              "pairs": int(tile_list.shape[0]), "pairs_blended": int(processed.sum()),
              "pixel_evals": int(evals.sum())}

@@ -34,6 +34,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import prange_only
+
 MAX_DEGREE = 8
 
 
@@ -191,7 +193,7 @@ def sh_eval_batch(x, y, z, degree, norm, out, cm, sm, p1, p2):
                         out[base - m, g] = nl * p * sm[g]
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def _eval_basis_kernel(dirs, degree, norm, out):
     for i in prange(dirs.shape[0]):
         sh_eval_dir(dirs[i, 0], dirs[i, 1], dirs[i, 2], degree, norm, out[i])

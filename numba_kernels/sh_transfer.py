@@ -33,6 +33,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import prange_only
 from .sh_real import NORM, band_of_index, cosine_lobe_band_factors, degree_from_num_coeffs, sh_eval_batch
 
 C0_3DGS = 0.28209479177387814
@@ -48,7 +49,7 @@ def _check_params(q: float, t_max: float, eps: float) -> None:
         raise ValueError(f"eps must be finite and >= 0, got {eps}")
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _scale_sh_kernel(normals, weighted_probe, den, degree, t_max, eps, norm, out):
     n = normals.shape[0]
     k = (degree + 1) * (degree + 1)
@@ -136,7 +137,7 @@ def latlong_quadrature(n_theta: int, n_phi: int) -> tuple[np.ndarray, np.ndarray
     return dirs, w
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def _scale_quadrature_kernel(normals, dirs, weights, radiance, q, t_max, eps, out):
     n = normals.shape[0]
     m = dirs.shape[0]
@@ -195,7 +196,7 @@ def transfer_scale_quadrature(normals: np.ndarray, probe_rh: np.ndarray, q: floa
     return out
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _relight_kernel(sh, scale, gamma, c0, out):
     n, k, _ = sh.shape
     n_chunks = (n + _CHUNK - 1) // _CHUNK
@@ -229,5 +230,7 @@ def relight_sh_coefficients(sh: np.ndarray, scale: np.ndarray, gamma: float = 1.
     if not math.isfinite(gamma):
         raise ValueError(f"gamma must be finite, got {gamma}")
     out = np.empty_like(sh)
+    sh = sh.view()
+    sh.flags.writeable = False  # one kernel specialisation whether or not the caller's array is read-only
     _relight_kernel(sh, scale, float(gamma), C0_3DGS, out)
     return out

@@ -31,6 +31,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import prange_only
 from .quaternion import quat_to_rotation
 from .sh_real import NORM, degree_from_num_coeffs, sh_eval_batch
 
@@ -51,7 +52,7 @@ def rgca_to_zonal(z: np.ndarray) -> np.ndarray:
     return z / np.sqrt(4.0 * np.pi / (2.0 * l + 1.0))
 
 
-@njit(parallel=True, cache=True, fastmath=False)
+@njit(parallel=prange_only(), cache=True, fastmath=False)
 def _zh_kernel(quat, albedo, zh_color, zh_mono, has_mono, probe, degree, gamma, norm, out):
     n = quat.shape[0]
     k = (degree + 1) * (degree + 1)
