@@ -23,6 +23,7 @@ from numba import njit, prange
 
 from .dgsm_build import TILE, Atlas, _accumulate_point, _footprints, atlas_buffers, far_distance, t_max_for
 from .dgsm_model import check_points, check_vector
+from .jit_options import prange_only
 
 
 @njit(cache=True, fastmath=False)
@@ -62,7 +63,7 @@ def _pixel_dir(pid, F):
     return cube_decode(f, (2.0 * i + 1.0) / F - 1.0, (2.0 * j + 1.0) / F - 1.0)
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _pixel_dirs(pixels, F, out):
     for p in prange(pixels.shape[0]):
         out[p, 0], out[p, 1], out[p, 2] = _pixel_dir(pixels[p], F)
@@ -92,7 +93,7 @@ def _stencil(F, K, t_max, ox, oy, oz, x, y, z):
     return f, i0, j0, fx - i0, fy - j0, k0, wk, t
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _roi(light, pts, F, K, t_max, pix, kk):
     for m in prange(pts.shape[0]):
         f, i0, j0, wx, wy, k0, wk, t = _stencil(F, K, t_max, light[0], light[1], light[2],
@@ -106,7 +107,7 @@ def _roi(light, pts, F, K, t_max, pix, kk):
         kk[m, 1] = min(k0 + 1, K - 1)
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _tile_lists(tcone, cone, theta, counts, start, items, fill_mode):
     for g in prange(tcone.shape[0]):
         cx, cy, cz, rho = tcone[g, 0], tcone[g, 1], tcone[g, 2], tcone[g, 3]
@@ -182,7 +183,7 @@ def build_point_cube(light, occ, dir_dep: int, cov6, roi_points, face: int = 208
     return Atlas(F, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), None)
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _lookup(index, values, F, K, t_max, kmin, kmax, light, pts, out):
     for m in prange(pts.shape[0]):
         f, i0, j0, wx, wy, k0, wk, t = _stencil(F, K, t_max, light[0], light[1], light[2],

@@ -46,6 +46,7 @@ import numpy as np
 from numba import njit, prange
 
 from .dgsm_model import Z_SATURATED, check_points, check_vector, ray_params
+from .jit_options import prange_only
 from .octahedral import OCT_LIPSCHITZ, oct_decode, oct_encode, pixel_center_uv, uv_to_pixel_coords, wrap_pixel
 
 ZC = Z_SATURATED
@@ -81,7 +82,7 @@ class Atlas(NamedTuple):
 
 
 # --------------------------------------------------------------------------- ROI
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _stencils(light, pts, w, K, t_max, pix, kk):
     for m in prange(pts.shape[0]):
         vx = pts[m, 0] - light[0]
@@ -214,10 +215,10 @@ def _visit_tiles(i, fx, fy, rp, wt, tile_active, stamp, counts, items, fill, fil
                 counts[t] += 1
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _footprints(light, mu, cov, w, k_sigma, fxs, fys, rps, is_glob, cone):
     for i in prange(mu.shape[0]):
-        g, fx, fy, rp, cth = _footprint(light, mu, cov, i, w, k_sigma)
+        g, fx, fy, rp, cth = _footprint(light, mu, cov, np.int64(i), w, k_sigma)
         if not g and 2.0 * rp >= w:
             g = True
         is_glob[i] = g
@@ -236,7 +237,7 @@ BIN_CHUNKS = 64  # at most, and at least BIN_CHUNK_MIN occluders per chunk
 BIN_CHUNK_MIN = 4096
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
     """CSR tile lists built in up to ``BIN_CHUNKS`` occluder chunks in parallel (at least
     ``BIN_CHUNK_MIN`` occluders each, so small casters stay as cheap as a serial pass): each chunk counts
@@ -378,7 +379,7 @@ def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin
 accumulate_one_call = njit(cache=True, fastmath=False)(_accumulate_one.py_func)
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                       group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, bin_skip,
                       out, pairs, erfs):
@@ -432,7 +433,7 @@ def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
             erfs[p] = ne[a]
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _pixel_dirs(pixels, w, out):
     for p in prange(pixels.shape[0]):
         u, v = pixel_center_uv(pixels[p] // w, pixels[p] % w, w)

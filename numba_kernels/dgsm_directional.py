@@ -32,6 +32,7 @@ from .dgsm_build import TILE, atlas_buffers
 from .dgsm_build import accumulate_one_call as _accumulate_one
 from .dgsm_exact import unit_direction
 from .dgsm_model import check_points
+from .jit_options import prange_only
 
 
 class DirAtlas(NamedTuple):
@@ -77,7 +78,7 @@ def _coords(x, y, z, c, B, S, h, tb, ds):
     return (p1 + 0.5 * S) / h - 0.5, (p2 + 0.5 * S) / h - 0.5, (s - tb) / ds - 0.5
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _stencils(pts, c, B, w, K, S, h, tb, ds, pix, kk):
     for m in prange(pts.shape[0]):
         fx, fy, fk = _coords(pts[m, 0], pts[m, 1], pts[m, 2], c, B, S, h, tb, ds)
@@ -150,7 +151,7 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active):
     return start, items, circ
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _accumulate(occ, dir_dep, c, B, pixels, w, S, h, tb, ds, kmin, kmax, use_tiles, tile_start, tile_items, circ,
                 bin_skip, out, pairs, erfs):
     nk = kmax - kmin + 1
@@ -238,7 +239,7 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
     return DirAtlas(width, K, c, B, h, tb, ds, kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()))
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _lookup(index, values, w, K, kmin, kmax, c, B, S, h, tb, ds, pts, out):
     for m in prange(pts.shape[0]):
         fx, fy, fk = _coords(pts[m, 0], pts[m, 1], pts[m, 2], c, B, S, h, tb, ds)

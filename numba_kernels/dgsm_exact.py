@@ -18,9 +18,10 @@ import numpy as np
 from numba import njit, prange
 
 from .dgsm_model import check_points, check_vector, segment_depth
+from .jit_options import prange_only
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _optical_depth_point(light, pts, occ, dir_dep):
     m = pts.shape[0]
     n = occ.shape[0]
@@ -41,7 +42,7 @@ def _optical_depth_point(light, pts, occ, dir_dep):
     return out
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _optical_depth_directional(ldir, pts, occ, dir_dep):
     m = pts.shape[0]
     n = occ.shape[0]

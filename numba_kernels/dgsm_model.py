@@ -59,6 +59,7 @@ import numpy as np
 from numba import njit, prange
 
 from .erf_stable import erf_diff_nonneg
+from .jit_options import prange_only
 from .quaternion import quat_to_rotation
 
 ALPHA_MAX = 1.0 - 1e-7
@@ -233,7 +234,7 @@ def depth_from_light(occ, i, ox, oy, oz, dx, dy, dz, t1, dir_dep):
 MAPPING_CODES = {"avg": 0, "simple": 1, "mass": 2, "diag": 3}
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _pack_gaussians(pos, quat, scales, alpha, kappa, code, occ, cov6):
     two_pi_15 = (2.0 * math.pi) ** 1.5
     for n in prange(pos.shape[0]):

@@ -25,6 +25,7 @@ from numba import njit, prange
 
 from .dgsm_build import cone_hits
 from .dgsm_model import depth_from_light
+from .jit_options import prange_only
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
 from .quaternion import quat_to_rotation
 
@@ -87,7 +88,7 @@ def lookup_one_range(index, values, w, K, t_max, kmin, kmax, ox, oy, oz, x, y, z
     return min(max(acc, 0.0), 1.0), lo, hi
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _lookup_point(index, values, w, K, t_max, kmin, kmax, light, pts, out):
     for m in prange(pts.shape[0]):
         out[m] = lookup_one(index, values, w, K, t_max, kmin, kmax, light[0], light[1], light[2],
@@ -103,7 +104,7 @@ def lookup_point(atlas, light, points) -> np.ndarray:
     return out
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _lookup_flag(index, values, w, K, t_max, kmin, kmax, light, pts, contrast, out, refined, tile):
     wt = w // 8
     ox, oy, oz = light[0], light[1], light[2]
@@ -121,7 +122,7 @@ def _lookup_flag(index, values, w, K, t_max, kmin, kmax, light, pts, contrast, o
             tile[m] = -1
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _refine_groups(light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob, cone, out):
     """Exact depth for the flagged points, grouped by culling tile: each tile's occluder list
     is read once and cone-tested (vectorised) against all of the group's point directions."""
@@ -224,7 +225,7 @@ def stencil_offsets(mode: str, n: int, m: int, seed: int = 0):
     raise ValueError(f"unknown footprint sampling {mode!r}; expected 'center', 'stencil7' or 'mc'")
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _footprint_points(mu, rot, scales, z, out):
     m = mu.shape[0]
     n = z.shape[1]
@@ -289,7 +290,7 @@ def hash_normals(seed, rid, s):
     return r1 * math.cos(2.0 * math.pi * u2), r1 * math.sin(2.0 * math.pi * u2), r2 * math.cos(2.0 * math.pi * u4)
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _footprints_q(pos, quat, scales, idx, mode, n, seed, out):
     for r in prange(idx.shape[0]):
         g = idx[r]
@@ -335,7 +336,7 @@ def footprint_points_gaussians(positions, quaternions, scales, idx, mode: str, n
     return out, w
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _roi_count(pos, c, R, ha, aa, ba, lo, hi, chunk, counts, firstbad):
     n = pos.shape[0]
     nch = counts.shape[0]
@@ -355,7 +356,7 @@ def _roi_count(pos, c, R, ha, aa, ba, lo, hi, chunk, counts, firstbad):
         firstbad[ch] = bad
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=prange_only(), fastmath=False)
 def _roi_fill(pos, c, R, ha, aa, ba, lo, hi, chunk, starts, out):
     n = pos.shape[0]
     for ch in prange(starts.shape[0] - 1):

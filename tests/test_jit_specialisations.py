@@ -1,12 +1,12 @@
 """Compile-time invariants: one numba specialisation per kernel for the inputs the main job passes,
-and the cache precompiler covers the lighting kernels (numba_kernels/precompile.py)."""
+and the parallel JIT warm-up (usd_gs.jit_warmup) creates exactly one per rasteriser kernel."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from numba_kernels import precompile, rasterize, sh_transfer
+from numba_kernels import rasterize, sh_transfer
 from numba_kernels.jit_options import prange_only
 from numba_kernels.sh_transfer import relight_sh_coefficients
 
@@ -28,8 +28,10 @@ def test_relight_one_specialisation_for_readonly_and_writable_inputs():
     assert len(sh_transfer._relight_kernel.signatures) == 1
 
 
-def test_precompile_compiles_one_specialisation_per_rasteriser_kernel():
-    precompile.main([])
+def test_warm_up_compiles_one_specialisation_per_rasteriser_kernel():
+    from usd_gs import jit_warmup
+
+    jit_warmup.warm_up()
     for kernel in (rasterize._cull, rasterize._write_entries, rasterize._bin_tiles, rasterize._blend):
         assert len(kernel.signatures) == 1, kernel
     # numba types a parallel loop's body twice (in the kernel, then as an outlined gufunc whose loop

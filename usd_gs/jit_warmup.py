@@ -100,8 +100,7 @@ def warm_up() -> None:
     probe = render_probe(everything, centre, opts.probe_size, opts.probe_degree, mask)
     n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
     normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
-    for sh in (avatar.sh, avatar.sh.copy()):  # read-only (static transform) and rotated (writable) SH
-        relight_sh(sh, normals, probe, q=opts.relight_q, gamma=opts.relight_gamma, t_max=opts.relight_t_max)
+    relight_sh(avatar.sh, normals, probe, q=opts.relight_q, gamma=opts.relight_gamma, t_max=opts.relight_t_max)
     # shadows: the static scene's atlas, a caster's shared atlas, the light combination
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
     centre_cfg = replace(opts.dgsm, sampling="center")
