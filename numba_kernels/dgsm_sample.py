@@ -122,44 +122,53 @@ def _lookup_flag(index, values, w, K, t_max, kmin, kmax, light, pts, contrast, o
             tile[m] = -1
 
 
+@njit(cache=True, fastmath=False)
+def _refine_group(g, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob, cone,
+                  out):
+    """Group ``g`` of :func:`_refine_groups` (a called function, not the parallel loop's inlined
+    body, which numba would type twice)."""
+    ox, oy, oz = light[0], light[1], light[2]
+    r0 = gstart[g]
+    n = gstart[g + 1] - r0
+    dxs = np.empty(n)
+    dys = np.empty(n)
+    dzs = np.empty(n)
+    ts = np.empty(n)
+    tau = np.zeros(n)
+    hit = np.zeros(n, np.bool_)
+    for a in range(n):
+        m = rows[r0 + a]
+        vx, vy, vz = pts[m, 0] - ox, pts[m, 1] - oy, pts[m, 2] - oz
+        t = math.sqrt(vx * vx + vy * vy + vz * vz)
+        ts[a] = t
+        dxs[a], dys[a], dzs[a] = vx / t, vy / t, vz / t
+    if use_tiles:
+        tt = gtile[g]
+        for q in range(tile_start[tt], tile_start[tt + 1]):
+            o = tile_items[q]
+            if cone_hits(dxs, dys, dzs, n, cone, o, hit) == 0:
+                continue
+            for a in range(n):
+                if hit[a]:
+                    tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
+        for a in range(n):
+            for q in range(glob.shape[0]):
+                tau[a] += depth_from_light(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
+    else:
+        for a in range(n):
+            for o in range(occ.shape[0]):
+                tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
+    for a in range(n):
+        out[rows[r0 + a]] = math.exp(-tau[a])
+
+
 @njit(cache=True, parallel=prange_only(), fastmath=False)
 def _refine_groups(light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob, cone, out):
     """Exact depth for the flagged points, grouped by culling tile: each tile's occluder list
     is read once and cone-tested (vectorised) against all of the group's point directions."""
-    ox, oy, oz = light[0], light[1], light[2]
     for g in prange(gstart.shape[0] - 1):
-        r0 = gstart[g]
-        n = gstart[g + 1] - r0
-        dxs = np.empty(n)
-        dys = np.empty(n)
-        dzs = np.empty(n)
-        ts = np.empty(n)
-        tau = np.zeros(n)
-        hit = np.zeros(n, np.bool_)
-        for a in range(n):
-            m = rows[r0 + a]
-            vx, vy, vz = pts[m, 0] - ox, pts[m, 1] - oy, pts[m, 2] - oz
-            t = math.sqrt(vx * vx + vy * vy + vz * vz)
-            ts[a] = t
-            dxs[a], dys[a], dzs[a] = vx / t, vy / t, vz / t
-        if use_tiles:
-            tt = gtile[g]
-            for q in range(tile_start[tt], tile_start[tt + 1]):
-                o = tile_items[q]
-                if cone_hits(dxs, dys, dzs, n, cone, o, hit) == 0:
-                    continue
-                for a in range(n):
-                    if hit[a]:
-                        tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
-            for a in range(n):
-                for q in range(glob.shape[0]):
-                    tau[a] += depth_from_light(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
-        else:
-            for a in range(n):
-                for o in range(occ.shape[0]):
-                    tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
-        for a in range(n):
-            out[rows[r0 + a]] = math.exp(-tau[a])
+        _refine_group(np.int64(g), light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items,
+                      glob, cone, out)
 
 
 def lookup_point_refined(atlas, light, points, occ, dir_dep: int, contrast: float = 0.1, group: int = 64):
