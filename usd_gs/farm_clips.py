@@ -19,9 +19,11 @@ Values clips do not fall back to weaker layers: where the active clip has no sam
 an attribute of the manifest, USD takes the manifest's default. A chunk leaves an
 attribute out exactly when it was unaffected at all of the chunk's frames (the single run
 then reads the unaffected value there too), so the manifest default of such an attribute is
-that unaffected value: all ones for ``primvars:usdgs:transmittance`` and the input's own SH
-for ``radiance:sphericalHarmonicsCoefficients`` (read as the pipeline reads it). This is only
-defined for static prims; a chunk missing a moving prim's attribute is an error. Inside a
+that unaffected value: all ones for ``primvars:usdgs:transmittance`` and the input's own
+prim-local SH for ``radiance:sphericalHarmonicsCoefficients`` (the pipeline authors SH in the
+prim's own frame). A moving prim (animated transform or positions) has the same unaffected
+values at every frame as long as its Gaussian count (for the transmittance) and its input SH
+(for the SH) do not change over time; where they do, a chunk missing the attribute is an error. Inside a
 chunk, every value is authored from the chunk's first frame and held values are re-authored
 before each change (``usd_gs.output_author``), so whole-frame queries equal the single run.
 """
@@ -111,12 +113,16 @@ def _unaffected_value(stage, attr_path, missing_in: str):
     if not prim or name not in (TRANSMITTANCE, SH_COEFFS):
         raise UserError(f"{why} and no unaffected value is defined for it; re-run with a larger --chunk-size")
     info = describe_gaussian_prim(prim, Usd.TimeCode.EarliestTime())
-    if info.time_samples is not None:
-        raise UserError(f"{why}, and the prim moves, so its unaffected value differs per frame: chunked runs need "
-                        "moving receivers to be relit or shadowed in every chunk; use one chunk for this shot")
+    varying = [a for a in ("positions", "positionsh", SH_COEFFS, SH_COEFFS + "h")
+               if prim.HasAttribute(a) and prim.GetAttribute(a).GetNumTimeSamples() > 1]
+    counts = {len(prim.GetAttribute(a).Get(t) or []) for a in varying if a.startswith("positions")
+              for t in prim.GetAttribute(a).GetTimeSamples()}
+    if counts - {info.count} or (name == SH_COEFFS and any(a.startswith(SH_COEFFS) for a in varying)):
+        raise UserError(f"{why}, and the prim's Gaussian count or input SH change over time, so its unaffected "
+                        "value differs per frame: re-run with a larger --chunk-size or one chunk for this shot")
     if name == TRANSMITTANCE:
         return Vt.FloatArray.FromNumpy(np.ones(info.count, np.float32))
-    g = read_gaussian_prim(prim, Usd.TimeCode.EarliestTime())
+    g = read_gaussian_prim(prim, Usd.TimeCode.EarliestTime(), world=False)
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(g.sh.astype(np.float32).reshape(-1, 3)))
 
 

@@ -375,9 +375,12 @@ class ShotProcessor:
                                               probe_dir)
         t = clk.add("relight", t)
 
-        # authoring: static prims only where shadowed now or before; dynamic ones always
+        # authoring: static prims only where shadowed now or before; dynamic ones always. Results
+        # are per-Gaussian colour factors, which commute with SH band rotations: they are applied
+        # to the prim-local SH that the attribute holds (the world-space SH are rotated).
         affected = []
         f = self.opts.direct_fraction
+        gamma = self.opts.relight_gamma
         owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in self._static_recv_paths]), u, side="right")
         for k, p in enumerate(self._static_recv_paths):
             sel = owner == k
@@ -386,23 +389,46 @@ class ShotProcessor:
             a, b = srecv.ranges[p]
             tp = np.ones(b - a, np.float32)
             tp[u[sel] - a] = t_static_u[sel]
-            sh_out = scale_sh(sets[p].sh, attenuation_factor(tp, f)) if (tp < 1).any() else sets[p].sh
-            if author.receiver(p, frame, tp, sh_out, sets[p].sh):
+            sh_in = self._local_sh(p, frame, sets[p])
+            sh_out = scale_sh(sh_in, attenuation_factor(tp, f)) if (tp < 1).any() else sh_in
+            if author.receiver(p, frame, tp, sh_out, sh_in):
                 affected.append(p)
         for p in self._dyn_recv_paths:
             a, b = drecv.ranges[p]
             tp = t_dyn[a:b]
-            base_sh = relit[p][0] if p in relit else sets[p].sh
+            sh_in = self._local_sh(p, frame, sets[p])
+            base_sh = scale_sh(sh_in, gamma * relit[p][1]) if p in relit else sh_in
             sh_out = scale_sh(base_sh, attenuation_factor(tp, f)) if (tp < 1).any() else base_sh
-            if author.receiver(p, frame, tp, sh_out, sets[p].sh) or p in relit:
+            if author.receiver(p, frame, tp, sh_out, sh_in) or p in relit:
                 affected.append(p)
-        for p, (sh_relit, scale) in relit.items():
+        for p, (_, scale) in relit.items():
             author.light_scale(p, frame, scale)
             if p not in drecv.ranges:
-                author.receiver(p, frame, np.ones(sets[p].count, np.float32), sh_relit, sets[p].sh)
+                sh_in = self._local_sh(p, frame, sets[p])
+                author.receiver(p, frame, np.ones(sets[p].count, np.float32), scale_sh(sh_in, gamma * scale), sh_in)
         clk.add("write", t)
         for p in affected:
             self.affected[p] = self.affected.get(p, 0) + 1
+
+    def _local_sh(self, path: str, frame: float, g):
+        """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at
+        ``frame``: ``g.sh`` (world space) when the prim's world transform has no rotation, else
+        read unrotated (once per shot for static prims)."""
+        from pxr import Usd, UsdGeom
+
+        from .usd_io import read_gaussian_prim
+
+        static = path in self.static
+        if static and path in self._local_sh_cache:
+            return self._local_sh_cache[path]
+        tc = Usd.TimeCode.EarliestTime() if static else Usd.TimeCode(frame)
+        m = np.array(UsdGeom.Xformable(self.prims[path]).ComputeLocalToWorldTransform(tc).ExtractRotationMatrix())
+        s = abs(np.linalg.det(m)) ** (1.0 / 3.0)
+        sh = g.sh if s > 0 and np.allclose(m / s, np.eye(3), atol=1e-9) else read_gaussian_prim(
+            self.prims[path], tc, world=False).sh
+        if static:
+            self._local_sh_cache[path] = sh
+        return sh
 
     def _shot_buffer(self, dyn: dict):
         """Every Gaussian of the frame in one set for probe renders: the static part is copied
@@ -518,6 +544,7 @@ class ShotProcessor:
         self._buffer = None
         self._centre_cfg = replace(self.opts.dgsm, sampling="center")
         self._local_normals = {}
+        self._local_sh_cache = {}
         self.affected = {}
         self.probe_files = 0
         self.lights_used = []
