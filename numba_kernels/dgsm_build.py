@@ -379,55 +379,6 @@ def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin
 accumulate_one_call = njit(cache=True, fastmath=False)(_accumulate_one.py_func)
 
 
-@njit(cache=True, fastmath=False)
-def _accumulate_group(g, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax, group_start, group_rows, group_tile,
-                      tile_start, tile_items, glob, cone, bin_skip, out, pairs, erfs):
-    """Pixel group ``g`` of :func:`_accumulate_point` (a called function rather than the
-    parallel loop's inlined body: numba types a parallel body twice, so this halves its compile
-    time; one call per group of at most 64 pixels costs nothing measurable)."""
-    nk = kmax - kmin + 1
-    dt = t_max / K
-    ox, oy, oz = light[0], light[1], light[2]
-    r0 = group_start[g]
-    npx = group_start[g + 1] - r0
-    dxs = np.empty(npx)
-    dys = np.empty(npx)
-    dzs = np.empty(npx)
-    hit = np.zeros(npx, np.bool_)
-    tau = np.zeros((npx, nk))
-    diff = np.zeros((npx, nk))
-    ne = np.zeros(npx, np.int64)
-    npairs = np.zeros(npx, np.int64)
-    for a in range(npx):
-        p = group_rows[r0 + a]
-        dxs[a], dys[a], dzs[a] = pdirs[p, 0], pdirs[p, 1], pdirs[p, 2]
-    t = group_tile[g]
-    if t >= 0:
-        for q in range(tile_start[t], tile_start[t + 1]):
-            o = tile_items[q]
-            if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
-                continue
-            for a in range(npx):
-                if not hit[a]:
-                    continue
-                npairs[a] += 1
-                ne[a] += _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
-                                         bin_skip, tau, diff, a, 0.0, 0.0)
-    for a in range(npx):
-        dx, dy, dz = dxs[a], dys[a], dzs[a]
-        for q in range(glob.shape[0]):
-            ne[a] += _accumulate_one(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
-                                     bin_skip, tau, diff, a, 0.0, 0.0)
-        npairs[a] += glob.shape[0]
-        p = group_rows[r0 + a]
-        run = 0.0
-        for k in range(nk):
-            run += diff[a, k]
-            out[p, k] = math.exp(-(tau[a, k] + run))
-        pairs[p] = npairs[a]
-        erfs[p] = ne[a]
-
-
 @njit(cache=True, parallel=prange_only(), fastmath=False)
 def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                       group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, bin_skip,
@@ -438,9 +389,48 @@ def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
     occluders are evaluated for every pixel without a cone test. ``group_tile[g] < 0`` means
     no tile list (the no-culling ablation passes every occluder in ``glob``). ``pdirs`` (|P|, 3)
     are the unit directions of the pixel centres (any direction parameterisation)."""
+    nk = kmax - kmin + 1
+    dt = t_max / K
+    ox, oy, oz = light[0], light[1], light[2]
     for g in prange(group_start.shape[0] - 1):
-        _accumulate_group(np.int64(g), light, occ, dir_dep, pdirs, K, t_max, kmin, kmax, group_start, group_rows,
-                          group_tile, tile_start, tile_items, glob, cone, bin_skip, out, pairs, erfs)
+        r0 = group_start[g]
+        npx = group_start[g + 1] - r0
+        dxs = np.empty(npx)
+        dys = np.empty(npx)
+        dzs = np.empty(npx)
+        hit = np.zeros(npx, np.bool_)
+        tau = np.zeros((npx, nk))
+        diff = np.zeros((npx, nk))
+        ne = np.zeros(npx, np.int64)
+        npairs = np.zeros(npx, np.int64)
+        for a in range(npx):
+            p = group_rows[r0 + a]
+            dxs[a], dys[a], dzs[a] = pdirs[p, 0], pdirs[p, 1], pdirs[p, 2]
+        t = group_tile[g]
+        if t >= 0:
+            for q in range(tile_start[t], tile_start[t + 1]):
+                o = tile_items[q]
+                if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
+                    continue
+                for a in range(npx):
+                    if not hit[a]:
+                        continue
+                    npairs[a] += 1
+                    ne[a] += _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
+                                             bin_skip, tau, diff, a, 0.0, 0.0)
+        for a in range(npx):
+            dx, dy, dz = dxs[a], dys[a], dzs[a]
+            for q in range(glob.shape[0]):
+                ne[a] += _accumulate_one(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
+                                         bin_skip, tau, diff, a, 0.0, 0.0)
+            npairs[a] += glob.shape[0]
+            p = group_rows[r0 + a]
+            run = 0.0
+            for k in range(nk):
+                run += diff[a, k]
+                out[p, k] = math.exp(-(tau[a, k] + run))
+            pairs[p] = npairs[a]
+            erfs[p] = ne[a]
 
 
 @njit(cache=True, parallel=prange_only(), fastmath=False)
