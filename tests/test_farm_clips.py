@@ -93,16 +93,22 @@ def test_chunk_layers_and_topology(shot, tmp_path):
 
 
 def test_local_processes_and_dask_cluster(shot, tmp_path):
-    """Two local worker processes, then a LocalCluster with two in-process workers: both
-    stitched results equal the single run."""
+    """Two local worker processes, then a LocalCluster with two in-process workers reached
+    through ``--scheduler tcp://...`` and through a client: every stitched result equals the
+    single run."""
     import distributed
     path, single = shot
     out = tmp_path / "procs.usdc"
     assert main(["process", str(path), "-o", str(out), "--frames", "1-4", "--chunk-size", "2", "--workers", "2",
                  "-q"]) == 0
     assert stage_differences(single, out, FRAMES) == []
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
                                   dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        # the command line's --scheduler path: a client connecting to the scheduler's tcp address
+        out3 = tmp_path / "sched.usdc"
+        assert main(["process", str(path), "-o", str(out3), "--frames", "1-4", "--chunk-size", "2", "--clips-dir",
+                     str(tmp_path / "sclips"), "--scheduler", cluster.scheduler_address, "-q"]) == 0
+        assert stage_differences(single, out3, FRAMES) == []
         out2 = tmp_path / "dask.usdc"
         lines = []
         s = run_farm(str(path), str(out2), ProcessOptions(frames="1-4"), 1, str(tmp_path / "dclips"), client=client,
