@@ -103,7 +103,7 @@ def warm_up() -> None:
     from .lights import alpha_weighted_centroid
     from .pipeline import ProcessOptions
     from .probe import fit_probe, render_probe
-    from .relight import relight_sh
+    from .relight import relight_scale
     from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
     from .shadows import prepare_occluders
     from .shot_shadows import Receivers, receiver_points, shared_transmittance
@@ -122,7 +122,8 @@ def warm_up() -> None:
     probe = fit_probe(faces, degree=opts.probe_degree, alpha=np.ones(faces.shape[:3], np.float32), center=centre)
     n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
     normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
-    relight_sh(avatar.sh, normals, probe, q=opts.relight_q, gamma=opts.relight_gamma, t_max=opts.relight_t_max)
+    scale = relight_scale(normals, probe, q=opts.relight_q, t_max=opts.relight_t_max)
+    scale_sh(avatar.sh, opts.relight_gamma * scale)
     probe.to_latlong(*opts.probe_texture)
     # shadow-map sampling with exact refinement, and accumulation, on a hand-made atlas
     occ, dir_dep = np.zeros((4, 16)), 0

@@ -397,11 +397,11 @@ class ShotProcessor:
             a, b = drecv.ranges[p]
             tp = t_dyn[a:b]
             sh_in = self._local_sh(p, frame, sets[p])
-            base_sh = scale_sh(sh_in, gamma * relit[p][1]) if p in relit else sh_in
+            base_sh = scale_sh(sh_in, gamma * relit[p]) if p in relit else sh_in
             sh_out = scale_sh(base_sh, attenuation_factor(tp, f)) if (tp < 1).any() else base_sh
             if author.receiver(p, frame, tp, sh_out, sh_in) or p in relit:
                 affected.append(p)
-        for p, (_, scale) in relit.items():
+        for p, scale in relit.items():
             author.light_scale(p, frame, scale)
             if p not in drecv.ranges:
                 sh_in = self._local_sh(p, frame, sets[p])
@@ -486,7 +486,7 @@ class ShotProcessor:
         from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
         from .probe import render_probe
-        from .relight import relight_sh
+        from .relight import relight_scale
 
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
@@ -504,8 +504,7 @@ class ShotProcessor:
             local = normals_to_local(g.orientations, n)
             self._local_normals[path] = local
         normals = local_normals_to_world(g.orientations, local)
-        sh_relit, scale = relight_sh(g.sh, normals, probe, q=self.opts.relight_q, gamma=self.opts.relight_gamma,
-                                     t_max=self.opts.relight_t_max)
+        scale = relight_scale(normals, probe, q=self.opts.relight_q, t_max=self.opts.relight_t_max)
         t = self.clock.add("transfer", t)
         name = _safe_name(path)
         tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
@@ -515,7 +514,7 @@ class ShotProcessor:
         rel = f"./{self.final_probe_dir.name}/{tex.name}"
         author.probe(name, frame, centre, probe.to_3dgs(), rel)
         self.clock.add("probe_write", t)
-        return sh_relit, scale
+        return scale
 
     # ------------------------------------------------------------------ run
     def run(self, progress: bool = True) -> ProcessSummary:

@@ -43,6 +43,19 @@ def probe_rh(probe, probe_basis: str | None = None) -> np.ndarray:
     raise UserError("probe coefficients given as an array need probe_basis='3dgs' or 'rh'")
 
 
+def relight_scale(normals: np.ndarray, probe, q: float = DEFAULT_Q, t_max: float = DEFAULT_T_MAX,
+                  eps: float = DEFAULT_EPS, probe_basis: str | None = None) -> np.ndarray:
+    """The per-channel factor ``s(n)`` of eq. 10, (N, 3) float32, for unit outward normals
+    (N, 3) (world) under ``probe`` (SHProbe, or (K2, 3) array with ``probe_basis``)."""
+    nrm = np.asarray(normals, dtype=np.float32)
+    if nrm.ndim != 2 or nrm.shape[1] != 3:
+        raise UserError(f"relight: normals must have shape (N, 3), got {nrm.shape}")
+    bad = ~np.isfinite(nrm)
+    if bad.any():
+        raise GaussianDataError(f"relight: 'normals' element {first_bad_index(bad)} is not finite")
+    return transfer_scale_sh(nrm, probe_rh(probe, probe_basis), q, t_max, eps)
+
+
 def relight_sh(sh: np.ndarray, normals: np.ndarray, probe, q: float = DEFAULT_Q, gamma: float = 1.0,
                t_max: float = DEFAULT_T_MAX, eps: float = DEFAULT_EPS, probe_basis: str | None = None):
     """Relit 3DGS SH coefficients and the per-channel factor.
@@ -53,13 +66,9 @@ def relight_sh(sh: np.ndarray, normals: np.ndarray, probe, q: float = DEFAULT_Q,
     ``0.5 + SH'(dir) = gamma * scale * (0.5 + SH(dir))`` for every direction.
     """
     sh = np.asarray(sh)
-    nrm = np.asarray(normals, dtype=np.float32)
-    if nrm.shape != (sh.shape[0], 3):
-        raise UserError(f"relight: normals must have shape ({sh.shape[0]}, 3), got {nrm.shape}")
-    bad = ~np.isfinite(nrm)
-    if bad.any():
-        raise GaussianDataError(f"relight: 'normals' element {first_bad_index(bad)} is not finite")
-    scale = transfer_scale_sh(nrm, probe_rh(probe, probe_basis), q, t_max, eps)
+    if np.shape(normals) != (sh.shape[0], 3):
+        raise UserError(f"relight: normals must have shape ({sh.shape[0]}, 3), got {np.shape(normals)}")
+    scale = relight_scale(normals, probe, q, t_max, eps, probe_basis)
     return relight_sh_coefficients(sh, scale, gamma), scale
 
 
