@@ -26,7 +26,8 @@ def _load_config(path: str) -> dict:
 DGSM_KEYS = ("atlas_size", "K", "k_sigma", "roi_radius", "kappa", "mapping", "sampling", "n_samples", "seed",
              "use_roi", "use_tile_culling", "refine_contrast")
 PROCESS_KEYS = ("frames", "lights", "lights_per_frame", "direct_fraction", "probe_size", "probe_degree",
-                "relight_q", "relight_gamma", "relight_t_max", "contact_bias", "roi", "emitter_radius")
+                "transfer_degree", "probe_points", "relight_q", "relight_gamma", "relight_t_max", "contact_bias", "roi",
+                "emitter_radius")
 
 
 def build_options(args):
@@ -47,8 +48,8 @@ def build_options(args):
     if args.no_tile_culling:
         dgsm.use_tile_culling = False
     kw = {k: cfg[k] for k in PROCESS_KEYS if k in cfg}
-    for k in ("frames", "lights", "direct_fraction"):
-        v = getattr(args, k)
+    for k in ("frames", "lights", "direct_fraction", "probe_points", "transfer_degree"):
+        v = getattr(args, k, None)
         if v is not None:
             kw[k] = v
     if args.lights_per_frame:
@@ -122,6 +123,11 @@ def register_process(sub, formatter):
     p.add_argument("--scene", action="append", metavar="PATH", help="treat this prim as scene")
     p.add_argument("--direct-fraction", type=float,
                    help="share of a receiver's colour that is direct light and can be shadowed (default 1)")
+    p.add_argument("--probe-points", type=int, metavar="K",
+                   help="relighting: parallax-corrected SH probes per avatar, blended by distance (default 8; "
+                        "1 = the paper's single probe at the centroid)")
+    p.add_argument("--transfer-degree", type=int, metavar="D",
+                   help="relighting: SH degree of the lighting transfer (default 4; the written probe stays degree 3)")
     p.add_argument("--atlas-size", type=int, help="DGSM octahedral atlas side in pixels (default 512)")
     p.add_argument("--sampling", choices=("center", "stencil7", "mc"),
                    help="receiver footprint sampling (default center: sharper and 8x cheaper than the paper's mc "

@@ -91,19 +91,19 @@ def _fake_atlas(occ_count: int):
 
 def warm_up() -> None:
     """Call the main job's kernels on tiny inputs, in the reverse of the order the main job
-    first needs them (module doc): relighting (probe render, fit, normals, SH transfer), then
+    first needs them (module doc): relighting (normals, probe render, fit, SH transfer), then
     the shadow maps' refined sampling and accumulation, then the rest of the shadow path.
     Measured on the 2-core machine, default 48-frame demo: this order balances the two
     processes best (relighting first 64 s, shadow maps first 64-66 s, no warm-up 86 s)."""
     from numba_kernels import dgsm_build, dgsm_sample
     from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
+    from .avatar_relight import relight_factors
     from .gaussians import GaussianSet
     from .light_prims import ShotLight
     from .lights import alpha_weighted_centroid
     from .pipeline import ProcessOptions
-    from .probe import fit_probe, render_probe
-    from .relight import relight_scale
+    from .probe_parallax import probe_clusters
     from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
     from .shadows import prepare_occluders
     from .shot_shadows import Receivers, receiver_points, shared_transmittance
@@ -112,17 +112,15 @@ def warm_up() -> None:
     opts = ProcessOptions().check()
     avatar, scene = _tiny_scene()
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
-    # relighting: the probe render (the longest compile), then SH transfer, normals, probe fit
+    # relighting: normals, the probe render (the longest compile), probe fit and SH transfer
     centre = alpha_weighted_centroid(avatar)
     everything = GaussianSet.concatenate([scene, avatar], label="shot")
     mask = np.ones(everything.count, bool)
     mask[scene.count:] = False
-    render_probe(everything, centre, opts.probe_size, opts.probe_degree, mask)
-    faces = np.ones((6, opts.probe_size, opts.probe_size, 3), np.float32)
-    probe = fit_probe(faces, degree=opts.probe_degree, alpha=np.ones(faces.shape[:3], np.float32), center=centre)
     n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
     normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
-    scale = relight_scale(normals, probe, q=opts.relight_q, t_max=opts.relight_t_max)
+    scale, probe = relight_factors(avatar, everything, mask, centre, normals,
+                                   probe_clusters(avatar.positions, opts.probe_points), opts)
     scale_sh(avatar.sh, opts.relight_gamma * scale)
     probe.to_latlong(*opts.probe_texture)
     # shadow-map sampling with exact refinement, and accumulation, on a hand-made atlas

@@ -54,6 +54,8 @@ class ProcessOptions:
     roi: str = "cone"  # receiver ROI per caster: 'cone' | 'box' (the paper's) | 'all'
     probe_size: int = 32
     probe_degree: int = 3
+    transfer_degree: int = 4
+    probe_points: int = 8
     probe_texture: tuple[int, int] = (32, 64)
     relight_q: float = 1.0
     relight_gamma: float = 1.0
@@ -66,6 +68,10 @@ class ProcessOptions:
             raise UserError(f"roi must be 'cone', 'box' or 'all', got '{self.roi}'")
         if self.probe_size < 4 or self.probe_degree < 0 or self.probe_degree > 3:
             raise UserError("probe size must be >= 4 and probe degree 0..3")
+        if not 0 <= self.transfer_degree <= 8:
+            raise UserError(f"transfer degree must be 0..8, got {self.transfer_degree}")
+        if not 1 <= self.probe_points <= 64:
+            raise UserError(f"probe points must be 1..64, got {self.probe_points}")
         if self.lights not in ("auto", "stage"):
             try:
                 k = int(self.lights)
@@ -311,6 +317,9 @@ class ShotProcessor:
         cfg = self.opts.dgsm
         packed = {q: prepare_occluders(sets[q], cfg) for q in self._casters_dyn} if lights else {}
         bound = {q: occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
+        # moving receivers: prim-level culling against each caster's beam, as for the bricks
+        dspheres = {p: bound[p] if p in bound else occluder_sphere(sets[p], cfg.k_sigma)
+                    for p in self._dyn_recv_paths if sets[p].count} if packed else {}
         s_light, d_light, touched = [], [], []
         for light in lights:
             ts = np.ones(srecv.gaussians.count)
@@ -324,7 +333,12 @@ class ShotProcessor:
                     cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
                     part_s = receiver_points(sets[q], srecv, light, cfg, roi=self.opts.roi, candidates=cand,
                                              sphere=bound[q])
-                part_d = receiver_points(sets[q], drecv, light, cfg, exclude=q, roi=self.opts.roi, sphere=bound[q])
+                part_d = None
+                dhit = [p for p in prims_in_shadow(dspheres, sets[q], light, cfg.k_sigma, bound[q]) if p != q]
+                if dhit:
+                    cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
+                    part_d = receiver_points(sets[q], drecv, light, cfg, roi=self.opts.roi, candidates=cand,
+                                             sphere=bound[q])
                 (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, packed[q])
                 ts[idx] *= val
                 hits.append(idx[val < 1.0])
@@ -485,27 +499,33 @@ class ShotProcessor:
     def _relight(self, path, g, everything, span, frame, author, probe_dir):
         from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
-        from .probe import render_probe
-        from .relight import relight_scale
+        from .avatar_relight import relight_factors
+        from .probe_parallax import probe_clusters
 
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)
         mask[span[0]:span[1]] = False
-        probe = render_probe(everything, centre, self.opts.probe_size, self.opts.probe_degree, mask)
-        t = self.clock.add("probe", t)
         local = self._local_normals.get(path)
+        first = None
         if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
-            a = self._read(path, self.anchor_frame)  # a chunk: normals from the shot's first frame
-            local = normals_to_local(a.orientations, gaussian_normals(a.positions, a.orientations, a.scales,
-                                                                      a.opacities))
+            first = self._read(path, self.anchor_frame)  # a chunk: normals and clusters from the shot's first frame
+            local = normals_to_local(first.orientations, gaussian_normals(first.positions, first.orientations,
+                                                                          first.scales, first.opacities))
+            self._local_normals[path] = local
         if local is None or local.shape[0] != g.count:
             n = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
             local = normals_to_local(g.orientations, n)
             self._local_normals[path] = local
+        labels = self._probe_labels.get(path)
+        if labels is None or labels.shape[0] != g.count:
+            rest = first if first is not None and first.count == g.count else g
+            labels = probe_clusters(rest.positions, self.opts.probe_points)
+            self._probe_labels[path] = labels
         normals = local_normals_to_world(g.orientations, local)
-        scale = relight_scale(normals, probe, q=self.opts.relight_q, t_max=self.opts.relight_t_max)
         t = self.clock.add("transfer", t)
+        scale, probe = relight_factors(g, everything, mask, centre, normals, labels, self.opts)
+        t = self.clock.add("probe", t)
         name = _safe_name(path)
         tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
         h, w = self.opts.probe_texture
@@ -543,6 +563,7 @@ class ShotProcessor:
         self._buffer = None
         self._centre_cfg = replace(self.opts.dgsm, sampling="center")
         self._local_normals = {}
+        self._probe_labels = {}
         self._local_sh_cache = {}
         self.affected = {}
         self.probe_files = 0

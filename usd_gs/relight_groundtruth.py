@@ -77,7 +77,7 @@ def _quad(o, u, v):
     return np.array([o, o + u, o + u + v, o + v]), np.array([[0, 1, 2], [0, 2, 3]])
 
 
-SPHERES = (((1.0, 0.4, 0.3), 0.4), ((-0.9, 0.5, -0.6), 0.5))
+SPHERES = (((-0.7, 0.4, 1.0), 0.4), ((-1.2, 0.5, -0.8), 0.5))
 """Two spheres (centre, radius) within 1.5 m of the avatar's centroid, so that the 4.1 metrics'
 scene neighbourhood has normals over the whole upper hemisphere, not just a floor."""
 
@@ -174,12 +174,17 @@ def env_image(hdr=None, size=(16, 32), mean_radiance: float = 0.6) -> np.ndarray
     return img * (mean_radiance / (float((luminance(img) * om).sum()) / (4 * np.pi)))
 
 
-def _env_dirs(env):
+def _env_dirs(env, oversample: int = 1):
+    """Quadrature of the sphere for the environment ``env`` (h, w, 3): directions (M, 3), solid
+    angles (M,) and radiance (M, 3) of the lat-long grid refined ``oversample`` x per axis
+    (each environment texel split into oversample^2 directions with its radiance)."""
     from . import envmap
 
-    h, w = env.shape[:2]
+    k = int(oversample)
+    fine = np.repeat(np.repeat(env, k, axis=0), k, axis=1) if k > 1 else env
+    h, w = fine.shape[:2]
     return envmap.latlong_directions(h, w).reshape(-1, 3), envmap.latlong_solid_angles(h, w).reshape(-1), \
-        env.reshape(-1, 3)
+        fine.reshape(-1, 3)
 
 
 def _direct_irradiance(rt, pts, nrm, env, lamp_pos, lamp_rgb, chunk: int = 4096):
@@ -246,7 +251,7 @@ def _dome(env, radius):
                               label="environment")
 
 
-def make_avatar(n: int = 4000, height: float = 1.8, position=(0.0, 0.0, 0.0), seed: int = 0) -> GaussianSet:
+def make_avatar(n: int = 4000, height: float = 1.8, position=(0.0, 0.02, 0.0), seed: int = 0) -> GaussianSet:
     """CesiumMan surface Gaussians in its first animation pose, ``height`` m tall, feet on y = 0 at
     ``position``, facing +z; colours = its (linear) texture albedo, SH degree 0."""
     from .avatar_from_mesh import posed_avatar_frames
@@ -261,7 +266,7 @@ def make_avatar(n: int = 4000, height: float = 1.8, position=(0.0, 0.0, 0.0), se
 
 
 def avatar_ground_truth(scene: KnownLightScene, avatar: GaussianSet, albedo: np.ndarray, at=None,
-                        chunk: int = 2048) -> np.ndarray:
+                        chunk: int = 2048, oversample: int = 1) -> np.ndarray:
     """Ground-truth colours (N, 3) ``albedo * E / pi`` of the avatar (module docstring).
 
     ``at``: None evaluates ``E`` at each Gaussian's position; a point (3,) evaluates it there for
@@ -272,7 +277,7 @@ def avatar_ground_truth(scene: KnownLightScene, avatar: GaussianSet, albedo: np.
     rt = _intersector(scene.mesh)
     nrm = quaternion_to_matrix(avatar.orientations)[:, :, 2].astype(np.float64)
     pts = avatar.positions.astype(np.float64) if at is None else np.tile(np.asarray(at, np.float64), (avatar.count, 1))
-    dirs, om, env = _env_dirs(scene.env)
+    dirs, om, env = _env_dirs(scene.env, oversample)
     tree = cKDTree(scene.surfaces.positions.astype(np.float64))
     surf_rgb = np.maximum(0.5 + sh3dgs.C0 * scene.surfaces.sh[:, 0, :].astype(np.float64), 0.0)
     e = np.zeros((avatar.count, 3))
@@ -303,31 +308,36 @@ def psnr(a, b, peak: float = 1.0) -> float:
     return float("inf") if mse == 0 else 10.0 * np.log10(peak * peak / mse)
 
 
-def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None, dilation: float | None = None):
+def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None, dilation: float | None = None,
+                         normals: np.ndarray | None = None):
     """The main job's relighting of one avatar: ``(relit SH (N, K, 3), probe, normals)``.
 
     Calls what ``ShotProcessor._relight`` calls, with ``ProcessOptions`` (defaults if None):
-    ``render_probe`` at the alpha-weighted centroid from ``others``, outward
-    ``gaussian_normals`` and ``relight_sh``. ``dilation``: the probe render's low-pass term in
+    outward ``gaussian_normals`` (or the given ``normals`` (N, 3)), ``probe_clusters`` and
+    ``usd_gs.avatar_relight.relight_factors`` at the alpha-weighted centroid with ``others``
+    drawn, and the eq. 10 scaling of the SH. ``dilation``: the probe render's low-pass term in
     px^2 (None: its default, which is what the main job uses).
     """
     from numba_kernels.normals import gaussian_normals
 
+    from .avatar_relight import relight_factors
     from .lights import alpha_weighted_centroid
     from .pipeline import ProcessOptions
-    from .probe import PROBE_DILATION, render_probe
-    from .relight import relight_sh
+    from .probe import PROBE_DILATION
+    from .probe_parallax import probe_clusters
+    from .shading import scale_sh
 
     o = options or ProcessOptions()
     centre = alpha_weighted_centroid(avatar)
     everything = GaussianSet.concatenate([others, avatar], label="shot")
     mask = np.ones(everything.count, bool)
     mask[others.count:] = False
-    probe = render_probe(everything, centre, o.probe_size, o.probe_degree, mask,
-                         PROBE_DILATION if dilation is None else dilation)
-    normals = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
-    sh, _ = relight_sh(avatar.sh, normals, probe, q=o.relight_q, gamma=o.relight_gamma, t_max=o.relight_t_max)
-    return sh, probe, normals
+    if normals is None:
+        normals = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
+    labels = probe_clusters(avatar.positions, o.probe_points)
+    scale, probe = relight_factors(avatar, everything, mask, centre, normals, labels, o,
+                                   PROBE_DILATION if dilation is None else dilation)
+    return scale_sh(avatar.sh, o.relight_gamma * scale), probe, normals
 
 
 def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=(16, 32), hdr=None,
@@ -370,11 +380,8 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
     sh, probe, normals = relight_like_process(avatar, scene.everything, opts, dilation)
     t["relight"] = time.perf_counter() - t0
     relit_rgb = 0.5 + sh3dgs.C0 * sh[:, 0, :].astype(np.float64)
-    from .relight import relight_sh
-
     true_n = quaternion_to_matrix(avatar.orientations)[:, :, 2].astype(np.float32)
-    sh_tn, _ = relight_sh(avatar.sh, true_n, probe, q=opts.relight_q, gamma=opts.relight_gamma,
-                          t_max=opts.relight_t_max)
+    sh_tn, _, _ = relight_like_process(avatar, scene.everything, opts, dilation, normals=true_n)
     relit_tn = 0.5 + sh3dgs.C0 * sh_tn[:, 0, :].astype(np.float64)
     flipped = np.einsum("ij,ij->i", normals.astype(np.float64), true_n) < 0
     out = {"psnr_relit": psnr(relit_rgb, truth), "psnr_orig": psnr(albedo, truth),

@@ -1,0 +1,112 @@
+"""Parallax-corrected probes (usd_gs.probe_parallax) against analytic irradiance."""
+
+import numpy as np
+import trimesh
+
+from numba_kernels.sh_real import band_of_index, cosine_lobe_band_factors, eval_basis_rh_numpy
+from usd_gs.avatar_from_mesh import gaussians_on_mesh, sample_surface
+from usd_gs.probe_parallax import (
+    blend_weights,
+    cluster_centres,
+    cube_texels,
+    nearest_centre,
+    probe_clusters,
+    reprojected_probes,
+)
+from usd_gs.render import render_cube_faces
+
+
+def _emitting_ball(centre, radius, radiance, n=3000):
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+    f, b = sample_surface(ball.vertices, ball.faces, n, 0)
+    return gaussians_on_mesh(np.asarray(ball.vertices) + centre, ball.faces, ball.vertex_normals, f, b,
+                             np.full(3, radiance), opacity=0.99, label="ball")
+
+
+def _irradiance(coeffs_rh, normal):
+    deg = int(np.sqrt(coeffs_rh.shape[0])) - 1
+    a = cosine_lobe_band_factors(1.0, deg)[band_of_index(deg)]
+    return (eval_basis_rh_numpy(np.asarray(normal, np.float64)[None], deg) * a) @ coeffs_rh
+
+
+def _emitting_quad(z, half, radiance, n=20000):
+    v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], np.float64)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    fi, b = sample_surface(v, f, n, 0)
+    return gaussians_on_mesh(v, f, np.tile([0.0, 0.0, 1.0], (4, 1)), fi, b, np.full(3, radiance), opacity=0.99,
+                             label="quad")
+
+
+def _quad_irradiance(x, normal, z, half, radiance, m=400):
+    """Reference: irradiance at x (normal n) from a uniform Lambertian square (side 2 half, plane z,
+    facing +z), midpoint rule on an m x m grid of the square."""
+    u = (np.arange(m) + 0.5) / m * 2 * half - half
+    gx, gy = np.meshgrid(u, u)
+    p = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], axis=1)
+    v = p - x
+    d2 = np.sum(v * v, axis=1)
+    dn = v / np.sqrt(d2)[:, None]
+    cos_x = np.maximum(dn @ normal, 0.0)
+    cos_s = np.maximum(-dn[:, 2], 0.0)
+    return radiance * float(np.sum(cos_x * cos_s / d2)) * (2 * half / m) ** 2
+
+
+def test_parallax_of_an_emitting_panel_matches_the_form_factor():
+    """An emitting 1 x 1 m panel 2 m from the render centre: the probes reprojected to points nearer,
+    farther and to the side give the panel's exact irradiance (form-factor quadrature) within 5 %."""
+    z, half, lum = -2.0, 0.5, 1.5
+    panel = _emitting_quad(z, half, lum)
+    c = np.zeros(3)
+    rgb, alpha, depth = render_cube_faces(panel, c, 64, antialiased=True, dilation=0.0)
+    tex = cube_texels(rgb, alpha, depth, c)
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.0, 0.8], [0.6, 0.3, -1.2], [0.4, 0.0, 0.0]])
+    probes = reprojected_probes(tex, pts, 4)
+    for p, coeffs in zip(pts, probes, strict=True):
+        for normal in (np.array([0.0, 0.0, -1.0]), np.array([0.6, 0.0, -0.8])):
+            got = _irradiance(coeffs, normal)[0, 0]
+            ref = _quad_irradiance(p, normal, z, half, lum)
+            assert abs(got / ref - 1.0) < 0.05, (p, normal, got, ref)
+
+
+def test_at_the_centre_it_is_the_plain_projection():
+    """Reprojected to the render's own centre, the probe is the SH projection of the texels."""
+    ball = _emitting_ball(np.array([1.0, 0.5, -2.0]), 0.4, 1.0, n=1500)
+    c = np.array([0.1, 0.2, 0.3])
+    rgb, alpha, depth = render_cube_faces(ball, c, 16, antialiased=True, dilation=0.0)
+    tex = cube_texels(rgb, alpha, depth, c)
+    got = reprojected_probes(tex, c[None], 2)[0]
+    live = tex.weight > 0
+    ref = eval_basis_rh_numpy(tex.dirs[live], 2).T @ (tex.radiance[live] * tex.weight[live, None])
+    assert np.allclose(got, ref, rtol=1e-9, atol=1e-12)
+
+
+def test_distant_texels_keep_their_direction():
+    """Texels at a large distance (a sky dome) give the same probe from any nearby point."""
+    from usd_gs.probe import hdr_dome_gaussians
+
+    env = np.random.default_rng(0).uniform(0.2, 1.0, (8, 16, 3)).astype(np.float32)
+    dome = hdr_dome_gaussians(env, radius=1000.0, n=128, sigma_factor=0.6)
+    c = np.zeros(3)
+    rgb, alpha, depth = render_cube_faces(dome, c, 16, antialiased=True, dilation=0.0)
+    tex = cube_texels(rgb, alpha, depth, c)
+    a, b = reprojected_probes(tex, np.array([[0.0, 0.0, 0.0], [0.5, -0.3, 0.4]]), 3)
+    assert np.max(np.abs(a - b)) < 2e-3 * np.max(np.abs(a))
+
+
+def test_clusters_weights_and_centres():
+    rng = np.random.default_rng(1)
+    blobs = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    x = np.concatenate([b + 0.05 * rng.standard_normal((300, 3)) for b in blobs])
+    lab = probe_clusters(x, 3)
+    assert np.array_equal(lab, probe_clusters(x, 3))  # deterministic
+    assert {len(set(lab[i * 300:(i + 1) * 300])) for i in range(3)} == {1}  # one label per blob
+    cen = cluster_centres(x, lab, 3)
+    assert np.allclose(np.sort(cen, axis=0), np.sort(blobs, axis=0), atol=0.02)
+    assert np.array_equal(nearest_centre(x, cen), lab)
+    w = blend_weights(x, cen)
+    assert np.allclose(w.sum(axis=1), 1.0)
+    assert np.array_equal(np.argmax(w, axis=1), lab)  # blobs 1 m apart, sigma 0.5 m: own probe weighs most
+    assert np.all(w[np.arange(len(x)), lab] > 0.7)
+    mid = blend_weights(np.array([[0.0, 0.5, 0.0]]), cen)[0]
+    assert abs(mid[lab[0]] - mid[lab[300]]) < 0.02 and mid[lab[600]] < mid[lab[0]]
+    assert probe_clusters(x[:2], 5).max() <= 1  # k capped at the number of Gaussians
