@@ -23,14 +23,14 @@ import numpy as np
 from .probe import PROBE_DILATION, SHProbe, fit_probe
 
 
-def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, labels: np.ndarray | None,
-                    opts, dilation: float = PROBE_DILATION) -> tuple[np.ndarray, SHProbe]:
+def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
+                    dilation: float = PROBE_DILATION) -> tuple[np.ndarray, SHProbe]:
     """``(scale (N, 3) float32 s(n), probe)`` for the Gaussians ``g`` (world space) with unit
     outward ``normals`` (N, 3), seen from ``everything`` where ``mask`` (bool, len
-    ``everything.count``) is True; ``centre`` (3,) metres; ``labels`` (N,) cluster of each
-    Gaussian (``probe_parallax.probe_clusters``; None: one probe); ``opts`` a
+    ``everything.count``) is True; ``centre`` (3,) metres; ``blend`` the prim's
+    ``probe_parallax.ProbeBlend`` for the shot (None: one probe); ``opts`` a
     ``ProcessOptions`` (probe_size, probe_degree, transfer_degree, relight_q, relight_t_max)."""
-    from .probe_parallax import blend_weights, cluster_centres, cube_texels, reprojected_probes
+    from .probe_parallax import cube_texels, reprojected_probes
     from .relight import relight_scale
     from .render import render_cube_faces
 
@@ -38,19 +38,14 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
                                           dilation=float(dilation))
     probe = fit_probe(rgb, degree=opts.probe_degree, alpha=alpha, center=centre)
     q, t_max = opts.relight_q, opts.relight_t_max
-    k = 1 if labels is None or len(labels) == 0 else int(labels.max()) + 1
-    if k == 1:
+    if blend is None or blend.k == 1:
         tp = probe if opts.transfer_degree == opts.probe_degree else fit_probe(rgb, degree=opts.transfer_degree,
                                                                               alpha=alpha, center=centre)
         return relight_scale(normals, tp, q=q, t_max=t_max), probe
-    tex = cube_texels(rgb, alpha, depth, centre)
-    centres = cluster_centres(g.positions, labels, k)
-    probes = reprojected_probes(tex, centres, opts.transfer_degree)
-    w = blend_weights(g.positions, centres)
+    probes = reprojected_probes(cube_texels(rgb, alpha, depth, centre), blend.centres(g.positions),
+                                opts.transfer_degree)
     scale = np.zeros((g.count, 3), np.float64)
-    for j in range(k):
-        sel = np.flatnonzero(w[:, j] > 0)
-        if sel.size:
-            s = relight_scale(normals[sel], probes[j], q=q, t_max=t_max, probe_basis="rh")
-            scale[sel] += w[sel, j, None] * s
+    for (idx, w), coeffs in zip(blend.members, probes, strict=True):
+        if idx.size:
+            scale[idx] += w[:, None] * relight_scale(normals[idx], coeffs, q=q, t_max=t_max, probe_basis="rh")
     return scale.astype(np.float32), probe

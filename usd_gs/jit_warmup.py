@@ -103,7 +103,7 @@ def warm_up() -> None:
     from .light_prims import ShotLight
     from .lights import alpha_weighted_centroid
     from .pipeline import ProcessOptions
-    from .probe_parallax import probe_clusters
+    from .probe_parallax import ProbeBlend
     from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
     from .shadows import prepare_occluders
     from .shot_shadows import Receivers, receiver_points, shared_transmittance
@@ -120,7 +120,7 @@ def warm_up() -> None:
     n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
     normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
     scale, probe = relight_factors(avatar, everything, mask, centre, normals,
-                                   probe_clusters(avatar.positions, opts.probe_points), opts)
+                                   ProbeBlend.build(avatar.positions, opts.probe_points), opts)
     scale_sh(avatar.sh, opts.relight_gamma * scale)
     probe.to_latlong(*opts.probe_texture)
     # shadow-map sampling with exact refinement, and accumulation, on a hand-made atlas

@@ -500,7 +500,7 @@ class ShotProcessor:
         from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
         from .avatar_relight import relight_factors
-        from .probe_parallax import probe_clusters
+        from .probe_parallax import ProbeBlend
 
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
@@ -517,14 +517,14 @@ class ShotProcessor:
             n = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
             local = normals_to_local(g.orientations, n)
             self._local_normals[path] = local
-        labels = self._probe_labels.get(path)
-        if labels is None or labels.shape[0] != g.count:
+        blend = self._probe_blends.get(path)
+        if blend is None or blend.labels.shape[0] != g.count:
             rest = first if first is not None and first.count == g.count else g
-            labels = probe_clusters(rest.positions, self.opts.probe_points)
-            self._probe_labels[path] = labels
+            blend = ProbeBlend.build(rest.positions, self.opts.probe_points)
+            self._probe_blends[path] = blend
         normals = local_normals_to_world(g.orientations, local)
         t = self.clock.add("transfer", t)
-        scale, probe = relight_factors(g, everything, mask, centre, normals, labels, self.opts)
+        scale, probe = relight_factors(g, everything, mask, centre, normals, blend, self.opts)
         t = self.clock.add("probe", t)
         name = _safe_name(path)
         tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
@@ -563,7 +563,7 @@ class ShotProcessor:
         self._buffer = None
         self._centre_cfg = replace(self.opts.dgsm, sampling="center")
         self._local_normals = {}
-        self._probe_labels = {}
+        self._probe_blends = {}
         self._local_sh_cache = {}
         self.affected = {}
         self.probe_files = 0

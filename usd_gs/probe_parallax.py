@@ -28,6 +28,8 @@ The probe points are the centres of ``k`` clusters of the avatar's Gaussians (k-
 rest pose, labels kept for the shot, each frame's centres are the labels' current means), and
 a Gaussian's transfer factor is the blend ``sum_k W_k s_k(n)`` with Gaussian weights of its
 distance to the centres (``sigma`` = half the median spacing between neighbouring centres).
+Labels and weights are computed once per shot on the prim's first frame (:class:`ProbeBlend`)
+and follow the prim: each frame's probe points are the labels' current means.
 
 Shapes: positions (N, 3) metres, world space (any up axis); cube faces in the layout of
 ``numba_kernels.cubemap_dirs`` (OpenGL order +X, -X, +Y, -Y, +Z, -Z).
@@ -188,8 +190,34 @@ def blend_weights(positions: np.ndarray, centres: np.ndarray, cutoff: float = 1e
     cc = np.sqrt(np.sum((c[:, None] - c[None]) ** 2, axis=2))
     np.fill_diagonal(cc, np.inf)
     sigma = max(0.5 * float(np.median(cc.min(axis=1))), 1e-6)
-    d2 = np.sum((x[:, None, :] - c[None]) ** 2, axis=2)
+    d2 = np.maximum(np.einsum("ij,ij->i", x, x)[:, None] - 2.0 * (x @ c.T) + np.einsum("ij,ij->i", c, c)[None], 0.0)
     logw = -(d2 - d2.min(axis=1, keepdims=True)) / (2.0 * sigma * sigma)
     w = np.exp(logw)
     w[w < cutoff] = 0.0
     return w / w.sum(axis=1, keepdims=True)
+
+
+@dataclass
+class ProbeBlend:
+    """Probe points of one prim for a shot: ``labels`` (N,) cluster per Gaussian, ``k`` probes,
+    and per probe the Gaussians it lights with their weights, ``members[j] = (idx (M,) int64,
+    w (M,) float64)`` (the nonzero column j of :func:`blend_weights` on the first frame)."""
+
+    labels: np.ndarray
+    k: int
+    members: list
+
+    @classmethod
+    def build(cls, positions: np.ndarray, k: int) -> ProbeBlend:
+        labels = probe_clusters(positions, k)
+        k = int(labels.max()) + 1 if labels.size else 1
+        w = blend_weights(positions, cluster_centres(positions, labels, k)) if labels.size else np.ones((0, 1))
+        members = []
+        for j in range(k):
+            idx = np.flatnonzero(w[:, j] > 0)
+            members.append((idx, w[idx, j]))
+        return cls(labels, k, members)
+
+    def centres(self, positions: np.ndarray) -> np.ndarray:
+        """(K, 3) this frame's probe points (the labels' mean positions)."""
+        return cluster_centres(positions, self.labels, self.k)

@@ -313,7 +313,7 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     """The main job's relighting of one avatar: ``(relit SH (N, K, 3), probe, normals)``.
 
     Calls what ``ShotProcessor._relight`` calls, with ``ProcessOptions`` (defaults if None):
-    outward ``gaussian_normals`` (or the given ``normals`` (N, 3)), ``probe_clusters`` and
+    outward ``gaussian_normals`` (or the given ``normals`` (N, 3)), ``ProbeBlend`` and
     ``usd_gs.avatar_relight.relight_factors`` at the alpha-weighted centroid with ``others``
     drawn, and the eq. 10 scaling of the SH. ``dilation``: the probe render's low-pass term in
     px^2 (None: its default, which is what the main job uses).
@@ -324,7 +324,7 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     from .lights import alpha_weighted_centroid
     from .pipeline import ProcessOptions
     from .probe import PROBE_DILATION
-    from .probe_parallax import probe_clusters
+    from .probe_parallax import ProbeBlend
     from .shading import scale_sh
 
     o = options or ProcessOptions()
@@ -334,8 +334,8 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     mask[others.count:] = False
     if normals is None:
         normals = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
-    labels = probe_clusters(avatar.positions, o.probe_points)
-    scale, probe = relight_factors(avatar, everything, mask, centre, normals, labels, o,
+    scale, probe = relight_factors(avatar, everything, mask, centre, normals,
+                                   ProbeBlend.build(avatar.positions, o.probe_points), o,
                                    PROBE_DILATION if dilation is None else dilation)
     return scale_sh(avatar.sh, o.relight_gamma * scale), probe, normals
 
