@@ -271,6 +271,7 @@ def avatar_ground_truth(scene: KnownLightScene, avatar: GaussianSet, albedo: np.
 
     ``at``: None evaluates ``E`` at each Gaussian's position; a point (3,) evaluates it there for
     every Gaussian (the probe-centre reference). Normals: each Gaussian's local z axis.
+    ``oversample``: the quadrature's directions per environment texel and axis (``_env_dirs``).
     """
     from scipy.spatial import cKDTree
 
@@ -342,12 +343,15 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
 
 def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=(16, 32), hdr=None,
                          probe_size: int | None = None, lamp: bool = True, metrics: bool = True,
-                         dilation: float | None = None, props: bool = True, seed: int = 0) -> dict:
+                         dilation: float | None = None, props: bool = True, oversample: int = 2,
+                         seed: int = 0) -> dict:
     """Relight the known-albedo avatar in the known-light scene and compare with the ground truth.
 
     ``lamp=False``: environment only (the lamp's intensity is 0). ``probe_size``: cube-face size
     (default ``ProcessOptions().probe_size``). ``dilation``: see :func:`relight_like_process`.
-    ``props``: the two spheres near the avatar (:data:`SPHERES`).
+    ``props``: the two spheres near the avatar (:data:`SPHERES`). ``oversample``: directions per
+    environment texel and axis in the ground truth's quadrature (2: within 51 dB of 4, against
+    44 dB for 1, measured per Gaussian).
     Returns ``{'psnr_relit', 'psnr_orig'}`` (dB against the per-Gaussian ground truth),
     ``'psnr_relit_true_normals'`` (the same probe, transfer with the mesh normals instead of
     ``gaussian_normals``), ``'flipped_normals'`` (share of ``gaussian_normals`` pointing into
@@ -371,9 +375,9 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
     t["scene"] = time.perf_counter() - t0
     albedo = 0.5 + sh3dgs.C0 * avatar.sh[:, 0, :].astype(np.float64)
     t0 = time.perf_counter()
-    truth = avatar_ground_truth(scene, avatar, albedo)
+    truth = avatar_ground_truth(scene, avatar, albedo, oversample=oversample)
     centre = alpha_weighted_centroid(avatar)
-    truth_c = avatar_ground_truth(scene, avatar, albedo, at=centre)
+    truth_c = avatar_ground_truth(scene, avatar, albedo, at=centre, oversample=oversample)
     t["ground_truth"] = time.perf_counter() - t0
     opts = ProcessOptions() if probe_size is None else replace(ProcessOptions(), probe_size=int(probe_size))
     t0 = time.perf_counter()
