@@ -14,11 +14,14 @@ scales (N, 3), linear opacities (N,)):
    neighbours of each Gaussian joins i and j, with the relative sign sign(<a_i, a_j>), when
    their axes are nearly parallel and j lies near the tangent planes of both
    (|<p_j - p_i, a>| <= 0.35 |p_j - p_i| for a = a_i and a_j, which keeps out the far side of
-   a thin limb or sheet). Passes join the most reliable pairs first: |cos| >= 0.98 within
-   ``radius``, then |cos| >= 0.9 within 0.6 ``radius``, then |cos| >= 0.9 within ``radius``
-   (on CesiumMan every pair across two body parts that passes the tangent test is longer
-   than 0.75 ``radius`` and has |cos| < 0.98). Creases (> 25 deg between neighbours) and
-   gaps split the set into components whose axes are consistently oriented.
+   a thin limb or sheet). Two passes join the most reliable pairs first: |cos| >= 0.98 within
+   ``radius``, then |cos| >= 0.9 within 0.6 ``radius`` (on CesiumMan every pair across two
+   body parts that passes the tangent test is longer than 0.75 ``radius`` and has
+   |cos| < 0.98; a third pass up to ``radius`` joined arm and torso at 1000-2000 Gaussians).
+   In the second pass a join is refused when both components are confidently oriented the
+   other way (|sum of parity * v| > 0.3 sum of opacity + 10 on each side, opposite signs).
+   Creases (> 25 deg between neighbours) and gaps split the set into components whose axes
+   are consistently oriented.
 4. Sign per component: the sign of the sum of its members' votes (thousands of votes on a
    smooth body part, so flat regions and a few concave spots no longer decide alone). If the
    component's mean |offset| is below ``1e-4 * radius`` (flat, or no neighbours): away from
@@ -31,8 +34,9 @@ scales (N, 3), linear opacities (N,)):
    tangential neighbours (|<p_j - p_i, n_i>| <= 0.5 |p_j - p_i|) is negative.
 
 Measured (``tests/test_normals.py``; CesiumMan from ``usd_gs.relight_groundtruth.make_avatar``,
-local z = mesh normal): Gaussians pointing into the body 1.1 / 2.7 / 7.7 / 19 % -> 0 / 0 / 0 /
-0.01 % at 1500 / 4000 / 30000 / 150000 Gaussians; flat faces of two cubes 10 % -> 0.
+local z = mesh normal): Gaussians pointing into the body 1.1 / 2.7 / 7.7 / 19 % -> 0.07 / 0 /
+0.02 / 0.01 % at 1500 / 4000 / 30000 / 150000 Gaussians (seeds 0-3 at 1000-30000: mean
+3.0 % -> 0.34 %, at most 1.8 % at 1000); flat faces of two cubes 10 % -> 0.
 
 Neighbours come from a uniform grid (cell = radius) stored as a hash table built with a
 sort (points are processed in grid order for cache locality); no KD-tree is needed at run
@@ -63,8 +67,9 @@ _P1, _P2, _P3 = 73856093, 19349663, 83492791
 _CHUNK = 256
 _VOTE_NEIGHBOURS = 32  # nearest neighbours kept per Gaussian for the orientation and consistency passes
 _BITS = 21  # bits per axis in a packed cell key
-_JOIN_PASSES = ((0.98, 1.0), (0.9, 0.6), (0.9, 1.0))  # (min |cos| of the axes, max distance / radius)
+_JOIN_PASSES = ((0.98, 1.0), (0.9, 0.6))  # (min |cos| of the axes, max distance / radius) per pass
 _JOIN_TANGENTIAL = 0.35  # max |<p_j - p_i, a>| / |p_j - p_i| of a joined pair
+_AGREE = (0.3, 10.0)  # passes >= 2 refuse a join of components with |sum v| > 0.3 sum o + 10, opposite signs
 _COHERENCE = 0.3  # min |sum v| / sum |v| of a trusted component
 _SMOOTH_BELOW = 32  # consistency passes for components smaller than this (and untrusted ones)
 _VOTE_CLIP = 0.05  # own votes saturate at an offset of this times the radius
@@ -323,7 +328,7 @@ def _consistency_kernel(pos, opac, nin, nbr, active, nout):
 @njit(cache=True, fastmath=False)
 def _find_root(parent, par, i):
     """Root of i in the signed union-find and the parity (+-1) of i relative to it (path halving)."""
-    p = np.int8(1)
+    p = 1
     while parent[i] != i:
         g = parent[i]
         if parent[g] != g:  # path halving: i now points to its grandparent
@@ -335,19 +340,29 @@ def _find_root(parent, par, i):
 
 
 @njit(cache=True, fastmath=False)  # serial: union-find is sequential (see jit_options.SERIAL_NOTE)
-def _orient_kernel(pos, axis, nbr, count, radius, passes, tangential, root, parity):
+def _orient_kernel(pos, axis, nbr, count, radius, passes, tangential, vote, weight, agree, root, parity):
     """Signed union-find over the kept neighbour pairs (module docstring, step 3): pass k joins
     i and j when |<a_i, a_j>| >= passes[k, 0], |p_j - p_i| <= passes[k, 1] * radius and j lies
     near the tangent planes of both (|<p_j - p_i, a>| <= tangential |p_j - p_i| for a = a_i and
     a_j), recording the relative sign sign(<a_i, a_j>); a pair is tried in the first pass whose
     limits it meets. ``count``: neighbours found per Gaussian (a pair (i, j), j < i, is tried
-    once, as (j, i), when j kept all its neighbours). Writes each Gaussian's component ``root``
-    and its ``parity`` (+-1) relative to the root: the axes ``parity * axis`` are consistently
-    oriented within every component."""
+    once, as (j, i), when j kept all its neighbours). ``vote`` / ``weight``: per-Gaussian signed
+    votes along ``axis`` and opacities; from the second pass on, a join is refused when both
+    components' summed votes exceed ``agree[0] * weight + agree[1]`` and contradict it. Writes
+    each Gaussian's component ``root`` and its ``parity`` (+-1) relative to the root: the axes
+    ``parity * axis`` are consistently oriented within every component."""
     n = pos.shape[0]
-    parent = np.arange(n)
-    par = np.ones(n, dtype=np.int8)
-    size = np.ones(n, dtype=np.int64)
+    parent = np.empty(n, dtype=np.int64)
+    par = np.empty(n, dtype=np.int64)
+    size = np.empty(n, dtype=np.int64)
+    cv = np.empty(n, dtype=np.float64)  # per root: the component's vote sum parity * vote
+    cw = np.empty(n, dtype=np.float64)  # and weight
+    for i in range(n):
+        parent[i] = i
+        par[i] = 1
+        size[i] = 1
+        cv[i] = vote[i]
+        cw[i] = weight[i]
     keep = nbr.shape[1]
     code = np.empty(nbr.shape, dtype=np.int8)  # first pass that tries pair (i, nbr[i, t]); -1: none
     for i in range(n):
@@ -374,8 +389,8 @@ def _orient_kernel(pos, axis, nbr, count, radius, passes, tangential, root, pari
                     break
     for k in range(passes.shape[0]):
         for i in range(n):
-            ri = np.int64(-1)
-            pi = np.int8(1)
+            ri = -1
+            pi = 1
             for t in range(nbr.shape[1]):
                 j = nbr[i, t]
                 if j < 0:
@@ -390,17 +405,25 @@ def _orient_kernel(pos, axis, nbr, count, radius, passes, tangential, root, pari
                 if ri == rj:
                     continue
                 sd = axis[i, 0] * axis[j, 0] + axis[i, 1] * axis[j, 1] + axis[i, 2] * axis[j, 2]
-                rel = pi * pj * (np.int8(1) if sd >= 0.0 else np.int8(-1))  # parity of rj relative to ri
+                rel = pi * pj if sd >= 0.0 else -pi * pj  # parity of rj relative to ri
+                vj = rel * cv[rj]
+                if k > 0 and cv[ri] * vj < 0.0 and abs(cv[ri]) > agree[0] * cw[ri] + agree[1] \
+                        and abs(vj) > agree[0] * cw[rj] + agree[1]:
+                    continue  # a weaker pair contradicting two confidently oriented components
                 if size[ri] < size[rj]:  # union by size
                     parent[ri] = rj
                     par[ri] = rel
                     size[rj] += size[ri]
+                    cv[rj] = vj + rel * cv[ri]
+                    cw[rj] += cw[ri]
                     pi = pi * rel
                     ri = rj
                 else:
                     parent[rj] = ri
                     par[rj] = rel
                     size[ri] += size[rj]
+                    cv[ri] += vj
+                    cw[ri] += cw[rj]
     for i in range(n):
         r, p = _find_root(parent, par, i)
         root[i] = r
@@ -493,7 +516,8 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
     root = np.empty(n, dtype=np.int64)
     parity = np.empty(n, dtype=np.int8)
     passes = np.asarray(_JOIN_PASSES, dtype=np.float64).reshape(-1, 2)
-    _orient_kernel(pos, axis, nbr, cnt, r, passes, float(_JOIN_TANGENTIAL), root, parity)
+    _orient_kernel(pos, axis, nbr, cnt, r, passes, float(_JOIN_TANGENTIAL), v, wv, np.asarray(_AGREE, dtype=np.float64),
+                   root, parity)
     axis *= parity[:, None]
     off *= parity
     off_g = np.einsum("ij,ij->i", pos - gcen, axis)
