@@ -52,11 +52,13 @@ def env_only():
 def test_environment_only(env_only):
     r = env_only
     assert psnr(r["truth"], r["truth"]) == float("inf")
-    # measured 18.0 / 27.7 / 8.3 dB; 3.4 % of gaussian_normals point into the body
-    assert r["psnr_relit"] > r["psnr_orig"] + 7.0
-    assert r["psnr_relit"] > 16.0
+    # measured 28.8 / 28.8 / 8.3 dB (relit / relit with the mesh normals / unrelit); no
+    # gaussian_normals point into the body (1.1 % before the orientation propagation: 22.4 dB)
+    assert r["psnr_relit"] > r["psnr_orig"] + 17.0
+    assert r["psnr_relit"] > 26.0
+    assert r["psnr_relit"] > r["psnr_relit_true_normals"] - 1.0
     assert r["psnr_relit_true_normals"] > 26.0
-    assert 0.0 < r["flipped_normals"] < 0.06
+    assert r["flipped_normals"] < 0.005
 
 
 def test_lamp_and_rasteriser_dilation():
@@ -66,7 +68,7 @@ def test_lamp_and_rasteriser_dilation():
     not improve here (see README)."""
     r = relight_ground_truth(n_avatar=1500, n_surface=6000, lamp=True, props=False, metrics=True)
     r3 = relight_ground_truth(n_avatar=1500, n_surface=6000, lamp=True, props=False, metrics=False, dilation=0.3)
-    assert r["psnr_relit"] > r["psnr_orig"] + 1.5
+    assert r["psnr_relit"] > r["psnr_orig"] + 15.0  # measured 26.0 / 6.9 dB (19.7 dB with 1.1 % flipped normals)
     assert r["psnr_relit_true_normals"] > 24.0
     assert r["psnr_relit_true_normals"] > r3["psnr_relit_true_normals"] + 4.0
     assert r["metrics"]["improvement"]["ncm_ab"] > 2.0
