@@ -50,9 +50,13 @@ def _check_params(q: float, t_max: float, eps: float) -> None:
 
 
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
-def _scale_sh_kernel(normals, weighted_probe, den, degree, t_max, eps, norm, out):
+def _scale_sh_kernel(normals, weighted_probes, blend, den, degree, t_max, eps, norm, out):
+    """out[i] = sum_p blend[i, p] * clip(ratio of probe p) (eq. 10 per probe, blended);
+    ``blend`` (1, P) applies its one row to every Gaussian."""
     n = normals.shape[0]
     k = (degree + 1) * (degree + 1)
+    n_probes = weighted_probes.shape[0]
+    shared = blend.shape[0] == 1
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     iso = math.sqrt(4.0 * math.pi)  # integral of L over the sphere = sqrt(4 pi) L_00
     for ch in prange(n_chunks):
@@ -67,7 +71,6 @@ def _scale_sh_kernel(normals, weighted_probe, den, degree, t_max, eps, norm, out
         sm = np.empty(gn, dtype=np.float64)
         p1 = np.empty(gn, dtype=np.float64)
         p2 = np.empty(gn, dtype=np.float64)
-        acc = np.zeros((3, gn), dtype=np.float64)
         for g in range(gn):
             nx = np.float64(normals[i0 + g, 0])
             ny = np.float64(normals[i0 + g, 1])
@@ -83,43 +86,69 @@ def _scale_sh_kernel(normals, weighted_probe, den, degree, t_max, eps, norm, out
                 y[g] = 0.0
                 z[g] = 1.0
         sh_eval_batch(x, y, z, degree, norm, basis, cm, sm, p1, p2)
-        for a in range(k):
-            for c in range(3):
-                wa = weighted_probe[a, c]
-                for g in range(gn):
-                    acc[c, g] += wa * basis[a, g]
         for g in range(gn):
-            for c in range(3):
-                if ok[g]:
-                    r = acc[c, g] / (den + eps)
-                else:  # zero normal: isotropic lobe, mean radiance
-                    r = weighted_probe[0, c] / den * iso / (4.0 * math.pi + eps)
-                if not r > 0.0:  # also maps NaN to 0
-                    r = 0.0
-                if r > t_max:
-                    r = t_max
-                out[i0 + g, c] = r
+            row = 0 if shared else i0 + g
+            tot0 = 0.0
+            tot1 = 0.0
+            tot2 = 0.0
+            for p in range(n_probes):
+                wgt = np.float64(blend[row, p])
+                if wgt == 0.0:
+                    continue
+                for c in range(3):
+                    if ok[g]:
+                        acc = 0.0
+                        for a in range(k):
+                            acc += weighted_probes[p, a, c] * basis[a, g]
+                        r = acc / (den + eps)
+                    else:  # zero normal: isotropic lobe, mean radiance
+                        r = weighted_probes[p, 0, c] / den * iso / (4.0 * math.pi + eps)
+                    if not r > 0.0:  # also maps NaN to 0
+                        r = 0.0
+                    if r > t_max:
+                        r = t_max
+                    if c == 0:
+                        tot0 += wgt * r
+                    elif c == 1:
+                        tot1 += wgt * r
+                    else:
+                        tot2 += wgt * r
+            out[i0 + g, 0] = tot0
+            out[i0 + g, 1] = tot1
+            out[i0 + g, 2] = tot2
 
 
 def transfer_scale_sh(normals: np.ndarray, probe_rh: np.ndarray, q: float = 1.0,
-                      t_max: float = 8.0, eps: float = 1e-6) -> np.ndarray:
+                      t_max: float = 8.0, eps: float = 1e-6, blend: np.ndarray | None = None) -> np.ndarray:
     """Closed-form eq. 10: per-channel lighting scale (N, 3) float32.
 
     normals: (N, 3) unit normals (world frame of the probe). probe_rh: (K, 3) RH-basis
-    radiance coefficients of any degree 0..8. q: lobe exponent (> -1); t_max: upper clip;
-    eps: denominator regulariser in steradians.
+    radiance coefficients of any degree 0..8, or (P, K, 3) for P probes blended per Gaussian
+    with ``blend`` (N, P) weights (rows summing to 1; zeros skip a probe): the result is then
+    ``sum_p blend[i, p] * s_p(n_i)``, each ``s_p`` clipped on its own. q: lobe exponent (> -1);
+    t_max: upper clip; eps: denominator regulariser in steradians.
     """
     q, t_max, eps = float(q), float(t_max), float(eps)
     _check_params(q, t_max, eps)
-    probe = np.ascontiguousarray(probe_rh, dtype=np.float64)
-    if probe.ndim != 2 or probe.shape[1] != 3:
-        raise ValueError(f"probe must have shape (K, 3), got {probe.shape}")
-    degree = degree_from_num_coeffs(probe.shape[0])
-    a_l = cosine_lobe_band_factors(q, degree)
-    weighted = np.ascontiguousarray(probe * a_l[band_of_index(degree)][:, None])
+    probe = np.asarray(probe_rh, dtype=np.float64)
+    if probe.ndim == 2:
+        probe = probe[None]
+    if probe.ndim != 3 or probe.shape[2] != 3:
+        raise ValueError(f"probe must have shape (K, 3) or (P, K, 3), got {np.shape(probe_rh)}")
     nrm = np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3)
+    if blend is None:
+        if probe.shape[0] != 1:
+            raise ValueError(f"{probe.shape[0]} probes need blend weights of shape (N, {probe.shape[0]})")
+        w = np.ones((1, 1), np.float32)
+    else:
+        w = np.ascontiguousarray(blend, dtype=np.float32)
+        if w.shape != (nrm.shape[0], probe.shape[0]):
+            raise ValueError(f"blend must have shape ({nrm.shape[0]}, {probe.shape[0]}), got {w.shape}")
+    degree = degree_from_num_coeffs(probe.shape[1])
+    a_l = cosine_lobe_band_factors(q, degree)
+    weighted = np.ascontiguousarray(probe * a_l[band_of_index(degree)][None, :, None])
     out = np.empty((nrm.shape[0], 3), dtype=np.float32)
-    _scale_sh_kernel(nrm, weighted, float(a_l[0]), degree, t_max, eps, NORM, out)
+    _scale_sh_kernel(nrm, weighted, w, float(a_l[0]), degree, t_max, eps, NORM, out)
     return out
 
 

@@ -112,15 +112,12 @@ def test_clusters_weights_and_centres():
     assert probe_clusters(x[:2], 5).max() <= 1  # k capped at the number of Gaussians
 
 
-def test_probe_blend_members_hold_each_gaussians_weights():
+def test_probe_blend_weights_follow_the_prim():
     from usd_gs.probe_parallax import ProbeBlend
 
     x = np.random.default_rng(2).uniform(-1.0, 1.0, (2000, 3))
     b = ProbeBlend.build(x, 6)
-    total = np.zeros(len(x))
-    for idx, w in b.members:
-        total[idx] += w
-    assert b.k == 6 and np.allclose(total, 1.0)
+    assert b.k == 6 and b.weights.shape == (2000, 6) and np.allclose(b.weights.sum(axis=1), 1.0, atol=1e-6)
     assert np.allclose(b.centres(x + 0.5), cluster_centres(x, b.labels, 6) + 0.5)  # points follow the prim
     one = ProbeBlend.build(x, 1)
-    assert one.k == 1 and np.array_equal(one.members[0][0], np.arange(len(x)))
+    assert one.k == 1 and np.all(one.weights == 1.0)

@@ -156,3 +156,24 @@ def test_relight_gaussians_end_to_end_on_a_sphere():
     np.testing.assert_allclose(scale, np.repeat(expect_s[:, None], 3, axis=1), rtol=1e-4)
     got = sh3dgs.eval_color(out.sh, np.array([0.0, 0.0, 1.0]))
     np.testing.assert_allclose(got, 0.9 * expect_s[:, None] * colour[None, :], rtol=1e-4)
+
+
+def test_blended_probes_equal_the_weighted_sum_of_single_probe_transfers():
+    """transfer_scale_sh with P probes and (N, P) weights = sum_p w_p * (single-probe result p),
+    each clipped on its own; zero weights skip a probe; one shared row applies to all."""
+    rng = np.random.default_rng(7)
+    n = rng.standard_normal((300, 3))
+    n[5] = 0.0  # zero normal: isotropic branch
+    probes = rng.standard_normal((3, 25, 3)) * 0.3
+    probes[:, 0, :] += 1.5
+    w = rng.uniform(0.0, 1.0, (300, 3))
+    w[rng.uniform(size=(300, 3)) < 0.3] = 0.0
+    w[w.sum(axis=1) == 0, 0] = 1.0
+    w /= w.sum(axis=1, keepdims=True)
+    single = np.stack([transfer_scale_sh(n, probes[p], q=1.0, t_max=0.45) for p in range(3)], axis=1)
+    expect = np.einsum("np,npc->nc", w, single.astype(np.float64))
+    got = transfer_scale_sh(n, probes, q=1.0, t_max=0.45, blend=w)
+    np.testing.assert_allclose(got, expect, rtol=1e-5, atol=1e-6)
+    assert (single > 0.449).any() and (single < 0.4).any()  # the clip is exercised, not everywhere
+    np.testing.assert_allclose(transfer_scale_sh(n, probes[1:2], q=1.0, t_max=0.45, blend=np.ones((300, 1))),
+                               single[:, 1], rtol=1e-6)

@@ -44,8 +44,4 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
         return relight_scale(normals, tp, q=q, t_max=t_max), probe
     probes = reprojected_probes(cube_texels(rgb, alpha, depth, centre), blend.centres(g.positions),
                                 opts.transfer_degree)
-    scale = np.zeros((g.count, 3), np.float64)
-    for (idx, w), coeffs in zip(blend.members, probes, strict=True):
-        if idx.size:
-            scale[idx] += w[:, None] * relight_scale(normals[idx], coeffs, q=q, t_max=t_max, probe_basis="rh")
-    return scale.astype(np.float32), probe
+    return relight_scale(normals, probes, q=q, t_max=t_max, probe_basis="rh", blend=blend.weights), probe

@@ -1,32 +1,75 @@
 """Parallel JIT warm-up: compile the main job's later numba kernels in a second process.
 
 numba compiles a kernel on its first call, in one thread, and ``usdgs process`` needs about
-fifty of them (~30 s of compilation on a cold cache, against ~0.85 s per warm frame on the
-2-core development machine). The kernels are cached on disk (``cache=True``), so a second
-process that calls them first fills the cache, and the main process then loads them instead
-of compiling. :func:`start` launches ``python -m usd_gs.jit_warmup`` when the cache is cold;
-it calls the main job's steps on a few generated Gaussians in *reverse* pipeline order
-(relighting first, then the shadow maps' refined sampling and accumulation, then the rest),
-while the main process compiles from the front (light estimation, then the shadow maps): the
-two meet in the middle and the compilation is spread over both cores. The warm-up calls the
+fifty of them (~37 s of single-threaded compilation on a cold cache, against ~0.9 s per warm
+frame on the 2-core development machine). The kernels are cached on disk (``cache=True``), so a
+second process that calls them first fills the cache, and the main process then loads them
+instead of compiling. :func:`start` launches ``python -m usd_gs.jit_warmup GROUP ...`` when the
+cache is cold. The main job compiles, in this order, light estimation (5 s), the shadow maps'
+preparation and accumulation (11.5 s), their refined sampling (3.7 s), then the relighting
+(normals 4.7 s, probe render 10.4 s, fit and transfer 2.2 s; single-threaded, idle machine).
+The warm-up takes the :data:`BACKGROUND` group, the relighting (17.3 s), touches a marker
+file when done and exits; the main process compiles the rest itself (20 s) and, before it
+first relights, waits for the marker (:func:`wait_for`) instead of compiling the same kernels
+a second time (a duplicate costs the whole compile, a wait only what is left of it). An
+earlier design compiled every later kernel in the warm-up in reverse order: the two processes
+then compiled the shadow kernels twice (measured 64-66 s cold for the 48-frame demo). The warm-up calls the
 same wrapper functions as the main job, so the kernels see the same argument types and the
 cache entries match (``tests/test_jit_warmup.py`` checks it).
 
 Nothing here changes a result: the warm-up writes only numba cache files, which numba
-replaces atomically. ``USDGS_JIT_WARMUP=0`` disables it.
+replaces atomically, and a wait ends when the marker appears, the warm-up process ends, or
+after :data:`WAIT_LIMIT` seconds. ``USDGS_JIT_WARMUP=0`` disables it.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
-from dataclasses import replace
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
-#: a kernel the warm-up compiles first; its cache entry tells whether the cache is cold
+#: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
 SENTINEL = ("numba_kernels.rasterize", "_blend")
+#: every group, in the order :func:`warm_up` compiles them
+GROUPS = ("refine", "relight", "shadows")
+#: the groups the background process compiles (the main job compiles the others itself)
+BACKGROUND = ("relight",)
+#: seconds the main process waits at most for one group
+WAIT_LIMIT = 120.0
+
+
+@dataclass
+class WarmUp:
+    """A running warm-up process and the folder where it marks each finished group."""
+
+    proc: subprocess.Popen
+    markers: Path
+    done: set | None = None
+
+    def wait(self, group: str) -> None:
+        """Block until ``group`` is compiled (its marker exists), the process has ended, or
+        :data:`WAIT_LIMIT` seconds have passed; returns at once for a group it does not compile
+        or has been seen finished."""
+        if self.done is None:
+            self.done = set()
+        if group not in BACKGROUND or group in self.done:
+            return
+        t0 = time.perf_counter()
+        while not (self.markers / group).exists() and self.proc.poll() is None:
+            if time.perf_counter() - t0 > WAIT_LIMIT:
+                break
+            time.sleep(0.02)
+        self.done.add(group)
+
+
+_ACTIVE: list = [None]  # the warm-up of the run in progress in this process (start/stop)
 
 
 def cache_is_cold() -> bool:
@@ -42,26 +85,49 @@ def cache_is_cold() -> bool:
         return False
 
 
-def start() -> subprocess.Popen | None:
-    """Launch the warm-up process if the cache is cold and ``USDGS_JIT_WARMUP`` is not ``0``;
-    returns the process (pass it to :func:`stop`) or None."""
+def start() -> WarmUp | None:
+    """Launch the warm-up process for the :data:`BACKGROUND` groups if the cache is cold and
+    ``USDGS_JIT_WARMUP`` is not ``0``; returns it (pass it to :func:`stop`) or None."""
     if os.environ.get("USDGS_JIT_WARMUP", "1") == "0" or not cache_is_cold():
         return None
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0")
-    return subprocess.Popen([sys.executable, "-m", "usd_gs.jit_warmup"], env=env, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    markers = Path(tempfile.mkdtemp(prefix="usdgs_warmup_"))
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0", USDGS_JIT_WARMUP_MARKERS=str(markers))
+    proc = subprocess.Popen([sys.executable, "-m", "usd_gs.jit_warmup", *BACKGROUND], env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _ACTIVE[0] = WarmUp(proc, markers)
+    return _ACTIVE[0]
 
 
-def stop(proc: subprocess.Popen | None) -> None:
-    """End the warm-up process (it has nothing left to give once the main job is done)."""
-    if proc is None or proc.poll() is not None:
+def wait_for(group: str) -> None:
+    """Called by the main job before it first needs ``group``'s kernels: :meth:`WarmUp.wait` on
+    this process's running warm-up, nothing when there is none (warm cache)."""
+    if _ACTIVE[0] is not None:
+        _ACTIVE[0].wait(group)
+
+
+def stop(warm) -> None:
+    """End the warm-up process (it has nothing left to give once the main job is done) and
+    remove its markers; ``warm`` is a :class:`WarmUp`, a bare ``Popen`` or None."""
+    if warm is None:
         return
-    proc.terminate()
-    try:
-        proc.wait(timeout=5)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    proc = warm.proc if isinstance(warm, WarmUp) else warm
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    if isinstance(warm, WarmUp):
+        shutil.rmtree(warm.markers, ignore_errors=True)
+        if _ACTIVE[0] is warm:
+            _ACTIVE[0] = None
+
+
+def _mark(group: str) -> None:
+    folder = os.environ.get("USDGS_JIT_WARMUP_MARKERS")
+    if folder:
+        Path(folder, group).touch()
 
 
 def _tiny_scene():
@@ -89,12 +155,11 @@ def _fake_atlas(occ_count: int):
                             np.arange(w * w, dtype=np.int64), 0, 0, tiles)
 
 
-def warm_up() -> None:
-    """Call the main job's kernels on tiny inputs, in the reverse of the order the main job
-    first needs them (module doc): relighting (normals, probe render, fit, SH transfer), then
-    the shadow maps' refined sampling and accumulation, then the rest of the shadow path.
-    Measured on the 2-core machine, default 48-frame demo: this order balances the two
-    processes best (relighting first 64 s, shadow maps first 64-66 s, no warm-up 86 s)."""
+def warm_up(groups=GROUPS) -> None:
+    """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
+    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
+    ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
+    shared atlas, light combination). Marks each group when done (see :func:`start`)."""
     from numba_kernels import dgsm_build, dgsm_sample
     from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
@@ -112,40 +177,46 @@ def warm_up() -> None:
     opts = ProcessOptions().check()
     avatar, scene = _tiny_scene()
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
-    # relighting: normals, the probe render (the longest compile), probe fit and SH transfer
-    centre = alpha_weighted_centroid(avatar)
-    everything = GaussianSet.concatenate([scene, avatar], label="shot")
-    mask = np.ones(everything.count, bool)
-    mask[scene.count:] = False
-    n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
-    normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
-    scale, probe = relight_factors(avatar, everything, mask, centre, normals,
-                                   ProbeBlend.build(avatar.positions, opts.probe_points), opts)
-    scale_sh(avatar.sh, opts.relight_gamma * scale)
-    probe.to_latlong(*opts.probe_texture)
-    # shadow-map sampling with exact refinement, and accumulation, on a hand-made atlas
     occ, dir_dep = np.zeros((4, 16)), 0
     atlas = _fake_atlas(len(occ))
-    pts = np.ascontiguousarray(light.position + np.array([[0.01, 0.02, 1.0]]) * np.linspace(0.5, 3.5, 16)[:, None])
-    dgsm_sample.lookup_point_refined(atlas, light.position, pts, occ, dir_dep, opts.dgsm.refine_contrast)
-    out = np.ones((4, atlas.K), np.float32)
-    dgsm_build.accumulate_pixels(light.position, occ, dir_dep, atlas.pixels[:4], atlas.width, atlas.K, atlas.t_max,
-                                 0, atlas.K - 1, atlas.tiles, True, opts.dgsm.bin_skip, out,
-                                 np.zeros(4, np.int64), np.zeros(4, np.int64))
-    # the rest of the shadow path: the static scene's atlas, a caster's shared atlas, light combination
-    centre_cfg = replace(opts.dgsm, sampling="center")
-    recv = Receivers.build([("/scene", scene)])
-    drecv = Receivers.build([("/avatar", avatar)])
-    part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
-    StaticSceneAtlas(scene, light.position, centre_cfg).transmittance(part[1])
-    parts = [receiver_points(avatar, recv, light, opts.dgsm, roi=opts.roi),
-             receiver_points(avatar, drecv, light, opts.dgsm, exclude="/avatar", roi=opts.roi)]
-    (idx, val), _ = shared_transmittance(avatar, parts, light, opts.dgsm, prepare_occluders(avatar, opts.dgsm))
-    t = np.ones(scene.count)
-    t[idx] *= val
-    tp = combine_lights([t, t], light_shares([light, light], scene.positions))
-    scale_sh(scene.sh, attenuation_factor(tp.astype(np.float32), opts.direct_fraction))
+    if "refine" in groups:  # shadow-map sampling with exact refinement, on a hand-made atlas
+        pts = np.ascontiguousarray(light.position + np.array([[0.01, 0.02, 1.0]]) * np.linspace(0.5, 3.5, 16)[:, None])
+        dgsm_sample.lookup_point_refined(atlas, light.position, pts, occ, dir_dep, opts.dgsm.refine_contrast)
+        _mark("refine")
+    if "relight" in groups:  # normals, the probe render (the longest compile), probe fit and SH transfer
+        centre = alpha_weighted_centroid(avatar)
+        everything = GaussianSet.concatenate([scene, avatar], label="shot")
+        mask = np.ones(everything.count, bool)
+        mask[scene.count:] = False
+        n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
+        normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
+        scale, probe = relight_factors(avatar, everything, mask, centre, normals,
+                                       ProbeBlend.build(avatar.positions, opts.probe_points), opts)
+        scale_sh(avatar.sh, opts.relight_gamma * scale)
+        probe.to_latlong(*opts.probe_texture)
+        _mark("relight")
+    if "shadows" in groups:
+        out = np.ones((4, atlas.K), np.float32)
+        dgsm_build.accumulate_pixels(light.position, occ, dir_dep, atlas.pixels[:4], atlas.width, atlas.K,
+                                     atlas.t_max, 0, atlas.K - 1, atlas.tiles, True, opts.dgsm.bin_skip, out,
+                                     np.zeros(4, np.int64), np.zeros(4, np.int64))
+        centre_cfg = replace(opts.dgsm, sampling="center")
+        recv = Receivers.build([("/scene", scene)])
+        drecv = Receivers.build([("/avatar", avatar)])
+        part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
+        StaticSceneAtlas(scene, light.position, centre_cfg).transmittance(part[1])
+        parts = [receiver_points(avatar, recv, light, opts.dgsm, roi=opts.roi),
+                 receiver_points(avatar, drecv, light, opts.dgsm, exclude="/avatar", roi=opts.roi)]
+        (idx, val), _ = shared_transmittance(avatar, parts, light, opts.dgsm, prepare_occluders(avatar, opts.dgsm))
+        t = np.ones(scene.count)
+        t[idx] *= val
+        tp = combine_lights([t, t], light_shares([light, light], scene.positions))
+        scale_sh(scene.sh, attenuation_factor(tp.astype(np.float32), opts.direct_fraction))
+        _mark("shadows")
 
 
 if __name__ == "__main__":
-    warm_up()
+    unknown = set(sys.argv[1:]) - set(GROUPS)
+    if unknown:
+        raise SystemExit(f"usd_gs.jit_warmup: unknown group(s) {sorted(unknown)}; groups are {GROUPS}")
+    warm_up(tuple(sys.argv[1:]) or GROUPS)

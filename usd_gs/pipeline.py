@@ -499,9 +499,11 @@ class ShotProcessor:
     def _relight(self, path, g, everything, span, frame, author, probe_dir):
         from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 
+        from . import jit_warmup
         from .avatar_relight import relight_factors
         from .probe_parallax import ProbeBlend
 
+        jit_warmup.wait_for("relight")  # cold cache: the warm-up process compiles these kernels
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)

@@ -199,24 +199,19 @@ def blend_weights(positions: np.ndarray, centres: np.ndarray, cutoff: float = 1e
 
 @dataclass
 class ProbeBlend:
-    """Probe points of one prim for a shot: ``labels`` (N,) cluster per Gaussian, ``k`` probes,
-    and per probe the Gaussians it lights with their weights, ``members[j] = (idx (M,) int64,
-    w (M,) float64)`` (the nonzero column j of :func:`blend_weights` on the first frame)."""
+    """Probe points of one prim for a shot: ``labels`` (N,) cluster per Gaussian, ``k`` probes and
+    ``weights`` (N, K) float32, :func:`blend_weights` on the first frame (rows sum to 1)."""
 
     labels: np.ndarray
     k: int
-    members: list
+    weights: np.ndarray
 
     @classmethod
     def build(cls, positions: np.ndarray, k: int) -> ProbeBlend:
         labels = probe_clusters(positions, k)
         k = int(labels.max()) + 1 if labels.size else 1
         w = blend_weights(positions, cluster_centres(positions, labels, k)) if labels.size else np.ones((0, 1))
-        members = []
-        for j in range(k):
-            idx = np.flatnonzero(w[:, j] > 0)
-            members.append((idx, w[idx, j]))
-        return cls(labels, k, members)
+        return cls(labels, k, np.ascontiguousarray(w, dtype=np.float32))
 
     def centres(self, positions: np.ndarray) -> np.ndarray:
         """(K, 3) this frame's probe points (the labels' mean positions)."""

@@ -44,15 +44,22 @@ def probe_rh(probe, probe_basis: str | None = None) -> np.ndarray:
 
 
 def relight_scale(normals: np.ndarray, probe, q: float = DEFAULT_Q, t_max: float = DEFAULT_T_MAX,
-                  eps: float = DEFAULT_EPS, probe_basis: str | None = None) -> np.ndarray:
+                  eps: float = DEFAULT_EPS, probe_basis: str | None = None,
+                  blend: np.ndarray | None = None) -> np.ndarray:
     """The per-channel factor ``s(n)`` of eq. 10, (N, 3) float32, for unit outward normals
-    (N, 3) (world) under ``probe`` (SHProbe, or (K2, 3) array with ``probe_basis``)."""
+    (N, 3) (world) under ``probe`` (SHProbe, or (K2, 3) array with ``probe_basis``), or under
+    P probes ((P, K2, 3) RH array, ``probe_basis='rh'``) blended per Gaussian with ``blend``
+    (N, P) weights (``numba_kernels.sh_transfer.transfer_scale_sh``)."""
     nrm = np.asarray(normals, dtype=np.float32)
     if nrm.ndim != 2 or nrm.shape[1] != 3:
         raise UserError(f"relight: normals must have shape (N, 3), got {nrm.shape}")
     bad = ~np.isfinite(nrm)
     if bad.any():
         raise GaussianDataError(f"relight: 'normals' element {first_bad_index(bad)} is not finite")
+    if blend is not None:
+        if probe_basis != "rh":
+            raise UserError("relight: blended probes are given as a (P, K, 3) RH array (probe_basis='rh')")
+        return transfer_scale_sh(nrm, np.asarray(probe, np.float64), q, t_max, eps, blend)
     return transfer_scale_sh(nrm, probe_rh(probe, probe_basis), q, t_max, eps)
 
 
