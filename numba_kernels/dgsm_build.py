@@ -420,9 +420,9 @@ def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                                              bin_skip, tau, diff, a, 0.0, 0.0)
         for a in range(npx):
             dx, dy, dz = dxs[a], dys[a], dzs[a]
-            for q in range(glob.shape[0]):
-                ne[a] += _accumulate_one(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
-                                         bin_skip, tau, diff, a, 0.0, 0.0)
+            for q in range(glob.shape[0]):  # a call, not a second inlined copy (compile time; few occluders)
+                ne[a] += accumulate_one_call(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
+                                             bin_skip, tau, diff, a, 0.0, 0.0)
             npairs[a] += glob.shape[0]
             p = group_rows[r0 + a]
             run = 0.0
@@ -468,6 +468,14 @@ def covariance6(cov) -> np.ndarray:
     return np.ascontiguousarray(np.stack([c[:, 0, 0], c[:, 0, 1], c[:, 0, 2], c[:, 1, 1], c[:, 1, 2], c[:, 2, 2]], 1))
 
 
+def pixel_directions(pixels, width: int) -> np.ndarray:
+    """(M, 3) float64 unit directions of the centres of atlas pixels ``pixels`` (M,) int64 flat
+    ids of a ``width`` x ``width`` octahedral atlas."""
+    out = np.empty((len(pixels), 3))
+    _pixel_dirs(np.ascontiguousarray(pixels, dtype=np.int64), int(width), out)
+    return out
+
+
 def accumulate_pixels(light, occ, dir_dep: int, pixels, width: int, K: int, t_max: float, kmin: int, kmax: int,
                       tiles, use_tiles: bool, bin_skip: bool, out, pairs, erfs) -> None:
     """Transmittance of the atlas pixels ``pixels`` (sorted flat ids) over bins ``kmin..kmax``
@@ -477,8 +485,7 @@ def accumulate_pixels(light, occ, dir_dep: int, pixels, width: int, K: int, t_ma
     ``use_tiles=False`` lists whose ``glob`` holds every occluder."""
     start, items, glob, cone = tiles
     gs, rows, gt = _groups(pixels, width, use_tiles)
-    pdirs = np.empty((len(pixels), 3))
-    _pixel_dirs(pixels, width, pdirs)
+    pdirs = pixel_directions(pixels, width)
     _accumulate_point(light, np.ascontiguousarray(occ, dtype=np.float64), int(dir_dep), pdirs, K, float(t_max), kmin,
                       kmax, gs, rows, gt, start, items, glob, cone, bool(bin_skip), out, pairs, erfs)
 

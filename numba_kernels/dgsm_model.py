@@ -231,6 +231,10 @@ def depth_from_light(occ, i, ox, oy, oz, dx, dy, dz, t1, dir_dep):
     return scale * erf_diff_nonneg(z0, z1)
 
 
+# the same function as an ordinary call, for the rarely taken loops of a kernel: each inlined call
+# site is another copy of the body to type and optimise (compile time)
+depth_from_light_call = njit(cache=True, fastmath=False)(depth_from_light.py_func)
+
 MAPPING_CODES = {"avg": 0, "simple": 1, "mass": 2, "diag": 3}
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from .dgsm_build import cone_hits
-from .dgsm_model import depth_from_light
+from .dgsm_model import depth_from_light, depth_from_light_call
 from .jit_options import prange_only
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
 from .quaternion import quat_to_rotation
@@ -151,13 +151,13 @@ def _refine_group(g, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, t
             for a in range(n):
                 if hit[a]:
                     tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
-        for a in range(n):
+        for a in range(n):  # the global list (few occluders) and the no-culling ablation: calls, not inlined
             for q in range(glob.shape[0]):
-                tau[a] += depth_from_light(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
+                tau[a] += depth_from_light_call(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
     else:
         for a in range(n):
             for o in range(occ.shape[0]):
-                tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
+                tau[a] += depth_from_light_call(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
     for a in range(n):
         out[rows[r0 + a]] = math.exp(-tau[a])
 

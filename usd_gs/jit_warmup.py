@@ -8,10 +8,12 @@ instead of compiling. :func:`start` launches ``python -m usd_gs.jit_warmup GROUP
 cache is cold. The main job compiles, in this order, light estimation (5 s), the shadow maps'
 preparation and accumulation (11.5 s), their refined sampling (3.7 s), then the relighting
 (normals 4.7 s, probe render 10.4 s, fit and transfer 2.2 s; single-threaded, idle machine).
-The warm-up takes the :data:`BACKGROUND` group, the relighting (17.3 s), touches a marker
-file when done and exits; the main process compiles the rest itself (20 s) and, before it
-first relights, waits for the marker (:func:`wait_for`) instead of compiling the same kernels
-a second time (a duplicate costs the whole compile, a wait only what is left of it). An
+The warm-up takes the :data:`BACKGROUND` groups, the occluder packing and atlas directions of
+the shadow maps (1.4 s, needed by the main process right after light estimation) and the
+relighting (17.3 s), touching a marker file after each, and exits; the main process compiles
+the rest itself (~18.7 s, balanced) and, before it first needs a background group, waits for
+its marker (:func:`wait_for`) instead of compiling the same kernels a second time (a
+duplicate costs the whole compile, a wait only what is left of it). An
 earlier design compiled every later kernel in the warm-up in reverse order: the two processes
 then compiled the shadow kernels twice (measured 64-66 s cold for the 48-frame demo). The warm-up calls the
 same wrapper functions as the main job, so the kernels see the same argument types and the
@@ -38,9 +40,9 @@ import numpy as np
 #: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
 SENTINEL = ("numba_kernels.rasterize", "_blend")
 #: every group, in the order :func:`warm_up` compiles them
-GROUPS = ("refine", "relight", "shadows")
+GROUPS = ("prep", "refine", "relight", "shadows")
 #: the groups the background process compiles (the main job compiles the others itself)
-BACKGROUND = ("relight",)
+BACKGROUND = ("prep", "relight")
 #: seconds the main process waits at most for one group
 WAIT_LIMIT = 120.0
 
@@ -156,8 +158,9 @@ def _fake_atlas(occ_count: int):
 
 
 def warm_up(groups=GROUPS) -> None:
-    """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
-    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
+    """Call the main job's kernels on tiny inputs, group by group (module doc): ``prep`` the
+    occluder packing and the atlas pixel directions, ``refine`` the shadow maps' refined
+    sampling, ``relight`` normals, probe render, fit and SH transfer,
     ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
     shared atlas, light combination). Marks each group when done (see :func:`start`)."""
     from numba_kernels import dgsm_build, dgsm_sample
@@ -179,6 +182,10 @@ def warm_up(groups=GROUPS) -> None:
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
     occ, dir_dep = np.zeros((4, 16)), 0
     atlas = _fake_atlas(len(occ))
+    if "prep" in groups:
+        prepare_occluders(avatar, opts.dgsm)
+        dgsm_build.pixel_directions(np.arange(4, dtype=np.int64), atlas.width)
+        _mark("prep")
     if "refine" in groups:  # shadow-map sampling with exact refinement, on a hand-made atlas
         pts = np.ascontiguousarray(light.position + np.array([[0.01, 0.02, 1.0]]) * np.linspace(0.5, 3.5, 16)[:, None])
         dgsm_sample.lookup_point_refined(atlas, light.position, pts, occ, dir_dep, opts.dgsm.refine_contrast)

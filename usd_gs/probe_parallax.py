@@ -122,9 +122,9 @@ def reprojected_probes(tex: CubeTexels, points, degree: int) -> np.ndarray:
     lum, d, r, w = tex.radiance[live], tex.dirs[live], tex.dist[live], tex.weight[live]
     p, nrm, cos_c = tex.points[live], tex.normals[live], tex.cos_c[live]
     out = np.empty((pts.shape[0], (degree + 1) ** 2, 3))
-    for k, x in enumerate(pts):
+    for k, x in enumerate(pts):  # one point at a time: faster than (K, T) temporaries (measured)
         v = p - x
-        dist = np.linalg.norm(v, axis=1)
+        dist = np.sqrt(np.einsum("ij,ij->i", v, v))
         ok = dist > 1e-9 * np.maximum(r, 1.0)
         dn = np.where(ok[:, None], v / np.where(ok, dist, 1.0)[:, None], d)
         cos_x = -np.einsum("ij,ij->i", nrm, dn)
@@ -179,7 +179,7 @@ def cluster_centres(positions: np.ndarray, labels: np.ndarray, k: int) -> np.nda
     return np.stack([np.bincount(labels, x[:, c], minlength=k) for c in range(3)], axis=1) / cnt[:, None]
 
 
-def blend_weights(positions: np.ndarray, centres: np.ndarray, cutoff: float = 1e-3) -> np.ndarray:
+def blend_weights(positions: np.ndarray, centres: np.ndarray, cutoff: float = 3e-2) -> np.ndarray:
     """(N, K) float64 weights (rows sum to 1): Gaussian in the distance to each centre with
     sigma = half the median distance from a centre to its nearest other centre; weights below
     ``cutoff`` of a row's largest are dropped (so each Gaussian uses only nearby probes)."""
