@@ -49,6 +49,14 @@ def _check_params(q: float, t_max: float, eps: float) -> None:
         raise ValueError(f"eps must be finite and >= 0, got {eps}")
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _clip(r, t_max):
+    """``r`` clipped to [0, t_max]; NaN -> 0."""
+    if not r > 0.0:
+        return 0.0
+    return t_max if r > t_max else r
+
+
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _scale_sh_kernel(normals, weighted_probes, blend, den, degree, t_max, eps, norm, out):
     """out[i] = sum_p blend[i, p] * clip(ratio of probe p) (eq. 10 per probe, blended);
@@ -95,24 +103,26 @@ def _scale_sh_kernel(normals, weighted_probes, blend, den, degree, t_max, eps, n
                 wgt = np.float64(blend[row, p])
                 if wgt == 0.0:
                     continue
-                for c in range(3):
-                    if ok[g]:
-                        acc = 0.0
-                        for a in range(k):
-                            acc += weighted_probes[p, a, c] * basis[a, g]
-                        r = acc / (den + eps)
-                    else:  # zero normal: isotropic lobe, mean radiance
-                        r = weighted_probes[p, 0, c] / den * iso / (4.0 * math.pi + eps)
-                    if not r > 0.0:  # also maps NaN to 0
-                        r = 0.0
-                    if r > t_max:
-                        r = t_max
-                    if c == 0:
-                        tot0 += wgt * r
-                    elif c == 1:
-                        tot1 += wgt * r
-                    else:
-                        tot2 += wgt * r
+                if ok[g]:
+                    r0 = 0.0
+                    r1 = 0.0
+                    r2 = 0.0
+                    for a in range(k):
+                        b = basis[a, g]
+                        r0 += weighted_probes[p, a, 0] * b
+                        r1 += weighted_probes[p, a, 1] * b
+                        r2 += weighted_probes[p, a, 2] * b
+                    r0 /= den + eps
+                    r1 /= den + eps
+                    r2 /= den + eps
+                else:  # zero normal: isotropic lobe, mean radiance
+                    f = iso / (den * (4.0 * math.pi + eps))
+                    r0 = weighted_probes[p, 0, 0] * f
+                    r1 = weighted_probes[p, 0, 1] * f
+                    r2 = weighted_probes[p, 0, 2] * f
+                tot0 += wgt * _clip(r0, t_max)
+                tot1 += wgt * _clip(r1, t_max)
+                tot2 += wgt * _clip(r2, t_max)
             out[i0 + g, 0] = tot0
             out[i0 + g, 1] = tot1
             out[i0 + g, 2] = tot2
