@@ -24,6 +24,7 @@ from numba import njit, prange
 from .dgsm_build import TILE, Atlas, _accumulate_point, _footprints, atlas_buffers, far_distance, t_max_for
 from .dgsm_model import check_points, check_vector
 from .jit_options import prange_only
+from .thread_chunks import run_chunks
 
 
 @njit(cache=True, fastmath=False)
@@ -151,8 +152,8 @@ def build_point_cube(light, occ, dir_dep: int, cov6, roi_points, face: int = 208
         fxs, fys, rps = np.empty(n), np.empty(n), np.empty(n)
         is_glob = np.zeros(n, np.bool_)
         cone = np.empty((n, 4))
-        _footprints(light, np.ascontiguousarray(occ[:, :3]), np.ascontiguousarray(cov6, dtype=np.float64), 512,
-                    float(k_sigma), fxs, fys, rps, is_glob, cone)
+        run_chunks(_footprints, occ.shape[0], light, np.ascontiguousarray(occ[:, :3]),
+                   np.ascontiguousarray(cov6, dtype=np.float64), 512, float(k_sigma), fxs, fys, rps, is_glob, cone)
         theta = np.arccos(np.clip(cone[:, 3], -1.0, 1.0))
         ft = F // TILE
         tile = (pixels // (F * F)) * ft * ft + ((pixels % (F * F)) // F // TILE) * ft + (pixels % F) // TILE
@@ -178,8 +179,9 @@ def build_point_cube(light, occ, dir_dep: int, cov6, roi_points, face: int = 208
         items = np.empty(start[-1], np.int64)
         _tile_lists(tcone, cone, theta, counts, start, items, True)
         glob = np.flatnonzero(is_glob).astype(np.int64)
-        _accumulate_point(light, occ, int(dir_dep), pdirs, K, float(t_max), kmin, kmax, gs, order.astype(np.int64),
-                          gt, start, items, glob, cone, bool(bin_skip), out, pairs, erfs)
+        run_chunks(_accumulate_point, len(gs) - 1, light, occ, int(dir_dep), pdirs, K, float(t_max), kmin, kmax, gs,
+                   order.astype(np.int64), gt, start, items, glob, cone, bool(bin_skip), out, pairs, erfs,
+                   chunks_per_thread=8)
     return Atlas(F, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), None)
 
 

@@ -43,11 +43,11 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .dgsm_model import Z_SATURATED, check_points, check_vector, ray_params
-from .jit_options import prange_only
 from .octahedral import OCT_LIPSCHITZ, oct_decode, oct_encode, pixel_center_uv, uv_to_pixel_coords, wrap_pixel
+from .thread_chunks import run_chunks
 
 ZC = Z_SATURATED
 EPS_PAIR = 1e-10
@@ -82,9 +82,9 @@ class Atlas(NamedTuple):
 
 
 # --------------------------------------------------------------------------- ROI
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _stencils(light, pts, w, K, t_max, pix, kk):
-    for m in prange(pts.shape[0]):
+@njit(cache=True, nogil=True, fastmath=False)
+def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk):
+    for m in range(i0_, i1_):
         vx = pts[m, 0] - light[0]
         vy = pts[m, 1] - light[1]
         vz = pts[m, 2] - light[2]
@@ -129,7 +129,7 @@ def roi_voxels(light, pts, w: int, K: int, t_max: float):
         return np.zeros(0, np.int64), 0, -1
     pix = np.empty((m, 4), np.int64)
     kk = np.empty((m, 2), np.int64)
-    _stencils(light, pts, w, K, t_max, pix, kk)
+    run_chunks(_stencils, pts.shape[0], light, pts, w, K, t_max, pix, kk, min_chunk=1024)
     mask = np.zeros(w * w, np.bool_)
     mask[pix.ravel()] = True
     return np.flatnonzero(mask), int(kk[:, 0].min()), int(kk[:, 1].max())
@@ -215,9 +215,9 @@ def _visit_tiles(i, fx, fy, rp, wt, tile_active, stamp, counts, items, fill, fil
                 counts[t] += 1
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _footprints(light, mu, cov, w, k_sigma, fxs, fys, rps, is_glob, cone):
-    for i in prange(mu.shape[0]):
+@njit(cache=True, nogil=True, fastmath=False)
+def _footprints(i0_, i1_, light, mu, cov, w, k_sigma, fxs, fys, rps, is_glob, cone):
+    for i in range(i0_, i1_):
         g, fx, fy, rp, cth = _footprint(light, mu, cov, np.int64(i), w, k_sigma)
         if not g and 2.0 * rp >= w:
             g = True
@@ -237,42 +237,57 @@ BIN_CHUNKS = 64  # at most, and at least BIN_CHUNK_MIN occluders per chunk
 BIN_CHUNK_MIN = 4096
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False)
+def _bin_count(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, counts):
+    """Pass 1 of :func:`_bin_tiles_chunked` for occluder chunks ``c0..c1-1``: (tile, occluder)
+    entries per chunk and tile into ``counts[c]``, each chunk with its own stamp array."""
+    n = fxs.shape[0]
+    wt = w // TILE
+    dummy = np.zeros(1, np.int64)
+    for c in range(c0, c1):
+        stamp = np.zeros(wt * wt, np.int64)
+        cnt = counts[c]
+        for i in range(c * step, min((c + 1) * step, n)):
+            if not is_glob[i]:
+                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, cnt, dummy, dummy, False)
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _bin_fill(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, offs, items):
+    """Pass 2 of :func:`_bin_tiles_chunked`: chunk c writes its entries from ``offs[c]`` on."""
+    n = fxs.shape[0]
+    wt = w // TILE
+    dummy = np.zeros(1, np.int64)
+    for c in range(c0, c1):
+        stamp = np.zeros(wt * wt, np.int64)
+        fill = offs[c]
+        for i in range(c * step, min((c + 1) * step, n)):
+            if not is_glob[i]:
+                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, dummy, items, fill, True)
+
+
 def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
     """CSR tile lists built in up to ``BIN_CHUNKS`` occluder chunks in parallel (at least
     ``BIN_CHUNK_MIN`` occluders each, so small casters stay as cheap as a serial pass): each chunk counts
     its (tile, occluder) entries with its own stamp array, one prefix sum over (tile, chunk)
     gives every chunk its write offsets, and a second parallel pass fills them. Items of a
-    tile come out in increasing occluder order, as a serial pass would give."""
+    tile come out in increasing occluder order, as a serial pass would give. Returns
+    ``(start (T+1,) int64, items int64)``."""
     n = fxs.shape[0]
     wt = w // TILE
     nt = wt * wt
     nc = min(BIN_CHUNKS, max(n // BIN_CHUNK_MIN, 1))
     step = (n + nc - 1) // nc
     counts = np.zeros((nc, nt), np.int64)
-    dummy = np.zeros(1, np.int64)
-    for c in prange(nc):
-        stamp = np.zeros(nt, np.int64)
-        cnt = counts[c]
-        for i in range(c * step, min((c + 1) * step, n)):
-            if not is_glob[i]:
-                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, cnt, dummy, dummy, False)
-    start = np.zeros(nt + 1, np.int64)
-    offs = np.empty((nc, nt), np.int64)
-    run = 0
-    for t in range(nt):
-        start[t] = run
-        for c in range(nc):
-            offs[c, t] = run
-            run += counts[c, t]
-    start[nt] = run
-    items = np.empty(run, np.int64)
-    for c in prange(nc):
-        stamp = np.zeros(nt, np.int64)
-        fill = offs[c]
-        for i in range(c * step, min((c + 1) * step, n)):
-            if not is_glob[i]:
-                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, dummy, items, fill, True)
+    run_chunks(_bin_count, nc, fxs, fys, rps, is_glob, int(w), tile_active, step, counts, chunks_per_thread=1)
+    # tile-major prefix sum over (tile, chunk): chunk c of tile t starts after all earlier tiles
+    # and the earlier chunks of tile t
+    flat = counts.T.reshape(-1)
+    excl = np.concatenate([[0], np.cumsum(flat)]).astype(np.int64)
+    offs = excl[:-1].reshape(nt, nc).T.copy()  # copies: the fill pass advances offs in place
+    start = excl[::nc].copy()  # (nt + 1,): excl[nt * nc] is the total
+    items = np.empty(int(excl[-1]), np.int64)
+    run_chunks(_bin_fill, nc, fxs, fys, rps, is_glob, int(w), tile_active, step, offs, items, chunks_per_thread=1)
     return start, items
 
 
@@ -286,7 +301,8 @@ def bin_tiles(light, mu, cov6, w: int, k_sigma: float, tile_active):
     fxs, fys, rps = np.empty(n), np.empty(n), np.empty(n)
     is_glob = np.zeros(n, np.bool_)
     cone = np.empty((n, 4))
-    _footprints(light, mu, cov6, w, float(k_sigma), fxs, fys, rps, is_glob, cone)
+    run_chunks(_footprints, mu.shape[0], light, mu, cov6, w, float(k_sigma), fxs, fys, rps, is_glob, cone,
+               min_chunk=1024)
     start, items = _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active)
     return start, items, np.flatnonzero(is_glob).astype(np.int64), cone
 
@@ -379,8 +395,8 @@ def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin
 accumulate_one_call = njit(cache=True, fastmath=False)(_accumulate_one.py_func)
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
+@njit(cache=True, nogil=True, fastmath=False)
+def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                       group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, bin_skip,
                       out, pairs, erfs):
     """Tile-major accumulation: each group is the ROI pixels of one 8x8 tile (rows of
@@ -388,11 +404,12 @@ def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
     occluders are read once and cone-tested against every pixel of the group; ``glob``
     occluders are evaluated for every pixel without a cone test. ``group_tile[g] < 0`` means
     no tile list (the no-culling ablation passes every occluder in ``glob``). ``pdirs`` (|P|, 3)
-    are the unit directions of the pixel centres (any direction parameterisation)."""
+    are the unit directions of the pixel centres (any direction parameterisation). Groups
+    ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
     nk = kmax - kmin + 1
     dt = t_max / K
     ox, oy, oz = light[0], light[1], light[2]
-    for g in prange(group_start.shape[0] - 1):
+    for g in range(g0, g1):
         r0 = group_start[g]
         npx = group_start[g + 1] - r0
         dxs = np.empty(npx)
@@ -433,9 +450,9 @@ def _accumulate_point(light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
             erfs[p] = ne[a]
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _pixel_dirs(pixels, w, out):
-    for p in prange(pixels.shape[0]):
+@njit(cache=True, nogil=True, fastmath=False)
+def _pixel_dirs(i0_, i1_, pixels, w, out):
+    for p in range(i0_, i1_):
         u, v = pixel_center_uv(pixels[p] // w, pixels[p] % w, w)
         out[p, 0], out[p, 1], out[p, 2] = oct_decode(u, v)
 
@@ -472,7 +489,7 @@ def pixel_directions(pixels, width: int) -> np.ndarray:
     """(M, 3) float64 unit directions of the centres of atlas pixels ``pixels`` (M,) int64 flat
     ids of a ``width`` x ``width`` octahedral atlas."""
     out = np.empty((len(pixels), 3))
-    _pixel_dirs(np.ascontiguousarray(pixels, dtype=np.int64), int(width), out)
+    run_chunks(_pixel_dirs, len(pixels), np.ascontiguousarray(pixels, dtype=np.int64), int(width), out, min_chunk=4096)
     return out
 
 
@@ -486,8 +503,9 @@ def accumulate_pixels(light, occ, dir_dep: int, pixels, width: int, K: int, t_ma
     start, items, glob, cone = tiles
     gs, rows, gt = _groups(pixels, width, use_tiles)
     pdirs = pixel_directions(pixels, width)
-    _accumulate_point(light, np.ascontiguousarray(occ, dtype=np.float64), int(dir_dep), pdirs, K, float(t_max), kmin,
-                      kmax, gs, rows, gt, start, items, glob, cone, bool(bin_skip), out, pairs, erfs)
+    run_chunks(_accumulate_point, len(gs) - 1, light, np.ascontiguousarray(occ, dtype=np.float64), int(dir_dep),
+               pdirs, K, float(t_max), kmin, kmax, gs, rows, gt, start, items, glob, cone, bool(bin_skip), out, pairs,
+               erfs, chunks_per_thread=8)
 
 
 def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K: int = 64,

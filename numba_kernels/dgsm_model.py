@@ -56,11 +56,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .erf_stable import erf_diff_nonneg
-from .jit_options import prange_only
 from .quaternion import quat_to_rotation
+from .thread_chunks import run_chunks
 
 ALPHA_MAX = 1.0 - 1e-7
 TAU_STAR_MAX = -math.log1p(-ALPHA_MAX)
@@ -238,10 +238,10 @@ depth_from_light_call = njit(cache=True, fastmath=False)(depth_from_light.py_fun
 MAPPING_CODES = {"avg": 0, "simple": 1, "mass": 2, "diag": 3}
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _pack_gaussians(pos, quat, scales, alpha, kappa, code, occ, cov6):
+@njit(cache=True, nogil=True, fastmath=False)
+def _pack_gaussians(i0_, i1_, pos, quat, scales, alpha, kappa, code, occ, cov6):
     two_pi_15 = (2.0 * math.pi) ** 1.5
-    for n in prange(pos.shape[0]):
+    for n in range(i0_, i1_):
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
             float(quat[n, 0]), float(quat[n, 1]), float(quat[n, 2]), float(quat[n, 3]))
         s0 = float(scales[n, 0]) ** 2
@@ -311,5 +311,6 @@ def pack_gaussians(positions, quaternions, scales, opacities, kappa: float = 1.0
         raise ValueError(f"'opacities' element {i} is outside [0, 1] (value {op[i]})")
     occ = np.empty((n, 16), np.float64)
     cov6 = np.empty((n, 6), np.float64)
-    _pack_gaussians(pos, quat, sc, op, float(kappa), MAPPING_CODES[mapping], occ, cov6)
+    run_chunks(_pack_gaussians, pos.shape[0], pos, quat, sc, op, float(kappa), MAPPING_CODES[mapping], occ, cov6,
+               min_chunk=1024)
     return occ, int(mapping == "diag"), cov6

@@ -28,6 +28,7 @@ from .dgsm_model import depth_from_light, depth_from_light_call
 from .jit_options import prange_only
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
 from .quaternion import quat_to_rotation
+from .thread_chunks import run_chunks
 
 
 @njit(cache=True, fastmath=False)
@@ -104,11 +105,11 @@ def lookup_point(atlas, light, points) -> np.ndarray:
     return out
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _lookup_flag(index, values, w, K, t_max, kmin, kmax, light, pts, contrast, out, refined, tile):
+@njit(cache=True, nogil=True, fastmath=False)
+def _lookup_flag(i0_, i1_, index, values, w, K, t_max, kmin, kmax, light, pts, contrast, out, refined, tile):
     wt = w // 8
     ox, oy, oz = light[0], light[1], light[2]
-    for m in prange(pts.shape[0]):
+    for m in range(i0_, i1_):
         x, y, z = pts[m, 0], pts[m, 1], pts[m, 2]
         val, lo, hi = lookup_one_range(index, values, w, K, t_max, kmin, kmax, ox, oy, oz, x, y, z)
         out[m] = val
@@ -162,11 +163,12 @@ def _refine_group(g, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, t
         out[rows[r0 + a]] = math.exp(-tau[a])
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _refine_groups(light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob, cone, out):
+@njit(cache=True, nogil=True, fastmath=False)
+def _refine_groups(i0_, i1_, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob,
+                   cone, out):
     """Exact depth for the flagged points, grouped by culling tile: each tile's occluder list
     is read once and cone-tested (vectorised) against all of the group's point directions."""
-    for g in prange(gstart.shape[0] - 1):
+    for g in range(i0_, i1_):
         _refine_group(np.int64(g), light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items,
                       glob, cone, out)
 
@@ -186,8 +188,8 @@ def lookup_point_refined(atlas, light, points, occ, dir_dep: int, contrast: floa
     out = np.empty(m)
     refined = np.zeros(m, np.bool_)
     tile = np.empty(m, np.int64)
-    _lookup_flag(atlas.index, atlas.values, atlas.width, atlas.K, atlas.t_max, atlas.kmin, atlas.kmax, light, pts,
-                 float(contrast), out, refined, tile)
+    run_chunks(_lookup_flag, m, atlas.index, atlas.values, atlas.width, atlas.K, atlas.t_max, atlas.kmin, atlas.kmax,
+               light, pts, float(contrast), out, refined, tile, min_chunk=1024)
     rows = np.flatnonzero(refined)
     if len(rows) == 0:
         return out, refined
@@ -208,8 +210,8 @@ def lookup_point_refined(atlas, light, points, occ, dir_dep: int, contrast: floa
     gs = np.unique(np.concatenate([np.arange(bounds[i], bounds[i + 1], group) for i in range(len(bounds) - 1)]
                                   + [np.array([len(rows)])])).astype(np.int64)
     gtile = tl[gs[:-1]].astype(np.int64)
-    _refine_groups(light, pts, rows.astype(np.int64), gs, gtile, np.ascontiguousarray(occ), int(dir_dep), use_tiles,
-                   start, items, glob, cone, out)
+    run_chunks(_refine_groups, len(gs) - 1, light, pts, rows.astype(np.int64), gs, gtile, np.ascontiguousarray(occ),
+               int(dir_dep), use_tiles, start, items, glob, cone, out, chunks_per_thread=8)
     return out, refined
 
 
@@ -299,9 +301,9 @@ def hash_normals(seed, rid, s):
     return r1 * math.cos(2.0 * math.pi * u2), r1 * math.sin(2.0 * math.pi * u2), r2 * math.cos(2.0 * math.pi * u4)
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _footprints_q(pos, quat, scales, idx, mode, n, seed, out):
-    for r in prange(idx.shape[0]):
+@njit(cache=True, nogil=True, fastmath=False)
+def _footprints_q(i0_, i1_, pos, quat, scales, idx, mode, n, seed, out):
+    for r in range(i0_, i1_):
         g = idx[r]
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
             float(quat[g, 0]), float(quat[g, 1]), float(quat[g, 2]), float(quat[g, 3]))
@@ -340,8 +342,8 @@ def footprint_points_gaussians(positions, quaternions, scales, idx, mode: str, n
         raise ValueError(f"unknown footprint sampling {mode!r}; expected 'center', 'stencil7' or 'mc'")
     idx = np.ascontiguousarray(idx, dtype=np.int64)
     out = np.empty((len(idx) * nn, 3))
-    _footprints_q(np.ascontiguousarray(positions), np.ascontiguousarray(quaternions), np.ascontiguousarray(scales), idx,
-                  code, nn, int(seed) & 0x7FFFFFFFFFFFFFFF, out)
+    run_chunks(_footprints_q, idx.shape[0], np.ascontiguousarray(positions), np.ascontiguousarray(quaternions),
+               np.ascontiguousarray(scales), idx, code, nn, int(seed) & 0x7FFFFFFFFFFFFFFF, out, min_chunk=1024)
     return out, w
 
 

@@ -71,7 +71,7 @@ import numpy as np
 from numba import njit, prange
 
 from .grid_neighbours import build_grid, grid_values, radius_sum
-from .jit_options import prange_only
+from .thread_chunks import run_chunks
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
@@ -216,7 +216,17 @@ def _cues_range(i0, i1, positions, opacities, sh, deg, centroid, viewpoints, r2,
                   status, mean_y, max_y, stability, dominance, lum)
 
 
-@njit(parallel=prange_only(), cache=True, fastmath=False)
+@njit(nogil=True, cache=True, fastmath=False)
+def _cues_chunks(c0, c1, positions, opacities, sh, deg, centroid, viewpoints, r2, min_opacity, max_weight, status,
+                 mean_y, max_y, stability, dominance, lum):
+    """Chunks ``c0..c1-1`` of ``_CHUNK`` Gaussians of :func:`score_cues` (threads: ``thread_chunks``)."""
+    n = positions.shape[0]
+    for ch in range(c0, c1):
+        _cues_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, opacities, sh, deg,
+                    centroid, viewpoints, r2, min_opacity, max_weight, status, mean_y, max_y, stability, dominance,
+                    lum)
+
+
 def score_cues(positions, opacities, sh, centroid, viewpoints, roi_radius, min_opacity, max_weight):
     """Steps 1-3: per-Gaussian status and photometric cues.
 
@@ -234,11 +244,10 @@ def score_cues(positions, opacities, sh, centroid, viewpoints, roi_radius, min_o
     stability = np.zeros(n)
     dominance = np.zeros(n)
     lum = np.zeros(n)
-    r2 = roi_radius * roi_radius
-    for ch in prange((n + _CHUNK - 1) // _CHUNK):
-        _cues_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, opacities, sh, deg,
-                    centroid, viewpoints, r2, min_opacity, max_weight, status, mean_y, max_y, stability, dominance,
-                    lum)
+    r2 = float(roi_radius) * float(roi_radius)
+    run_chunks(_cues_chunks, (n + _CHUNK - 1) // _CHUNK, positions, opacities, sh, deg,
+               np.asarray(centroid, np.float64), np.ascontiguousarray(viewpoints, np.float64), r2, float(min_opacity),
+               float(max_weight), status, mean_y, max_y, stability, dominance, lum)
     return status, mean_y, max_y, stability, dominance, lum
 
 

@@ -60,8 +60,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .jit_options import prange_only
 from .quaternion import quat_to_rotation
+from .thread_chunks import run_chunks
 
 _P1, _P2, _P3 = 73856093, 19349663, 83492791
 _CHUNK = 256
@@ -284,24 +284,24 @@ def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, ord
             cov[i, 5] += wj * d2 * d2
 
 
-@njit(parallel=prange_only(), cache=True, fastmath=False)
-def _local_stats_kernel(pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
+@njit(nogil=True, cache=True, fastmath=False)
+def _local_stats_kernel(c0, c1, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
                         iso_ratio, axis, ratio, centroid, count, cov, nbr):
     """Per Gaussian: smallest axis and scale ratio, opacity-weighted neighbour centroid,
-    neighbour count and the 6 unique entries (xx, xy, xz, yy, yz, zz) of the weighted covariance."""
+    neighbour count and the 6 unique entries (xx, xy, xz, yy, yz, zz) of the weighted covariance.
+    Chunks ``c0..c1-1`` of ``_CHUNK`` Gaussians (threads: ``thread_chunks.run_chunks``)."""
     n = pos.shape[0]
-    n_chunks = (n + _CHUNK - 1) // _CHUNK
-    for ch in prange(n_chunks):
+    for ch in range(c0, c1):
         _local_stats_chunk(np.int64(ch), n, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey,
                            max_nb, iso_ratio, axis, ratio, centroid, count, cov, nbr)
 
 
-@njit(parallel=prange_only(), cache=True, fastmath=False)
-def _consistency_kernel(pos, opac, nin, nbr, active, nout):
+@njit(nogil=True, cache=True, fastmath=False)
+def _consistency_kernel(i0_, i1_, pos, opac, nin, nbr, active, nout):
     """One Jacobi pass: flip n_i when the opacity-weighted vote of tangential neighbours is < 0
-    (only where ``active``; elsewhere n_i is copied)."""
-    n = pos.shape[0]
-    for i in prange(n):
+    (only where ``active``; elsewhere n_i is copied). Gaussians ``i0_..i1_-1`` (threads:
+    ``thread_chunks.run_chunks``)."""
+    for i in range(i0_, i1_):
         if not active[i]:
             for c in range(3):
                 nout[i, c] = nin[i, c]
@@ -502,8 +502,9 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
     cnt = np.empty(n, dtype=np.int64)
     cov6 = np.empty((n, 6), dtype=np.float64)
     nbr = np.empty((n, _VOTE_NEIGHBOURS), dtype=np.int32)
-    _local_stats_kernel(pos, quat, sc, op, grid.origin, r, grid.mask, grid.order, grid.start, grid.cellkey,
-                        int(max_neighbours), float(iso_ratio), axis, ratio, cen, cnt, cov6, nbr)
+    run_chunks(_local_stats_kernel, (n + _CHUNK - 1) // _CHUNK, pos, quat, sc, op, grid.origin, r, grid.mask,
+               grid.order, grid.start, grid.cellkey, int(max_neighbours), float(iso_ratio), axis, ratio, cen, cnt,
+               cov6, nbr)
     iso = np.flatnonzero((ratio > float(iso_ratio)) & (cnt >= 3))
     if iso.size:  # local PCA for nearly isotropic Gaussians (batched 3x3 eigh)
         c = cov6[iso]
@@ -538,7 +539,7 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
     active = incoherent | (sz < _SMOOTH_BELOW)
     tmp = np.empty_like(out)
     for _ in range(int(n_smooth)):
-        _consistency_kernel(pos, op, out, nbr, active, tmp)
+        run_chunks(_consistency_kernel, pos.shape[0], pos, op, out, nbr, active, tmp, min_chunk=1024)
         out, tmp = tmp, out
     res = np.empty((n, 3), dtype=np.float32)
     res[perm] = out

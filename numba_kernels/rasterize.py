@@ -62,8 +62,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .jit_options import prange_only
 from .quaternion import quat_to_rotation
+from .thread_chunks import run_chunks
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -224,8 +224,8 @@ def _sh_color(sh, g, dx, dy, dz):
     return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
 
 
-@njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
-def _cull(positions, scales, opacities, include, cams, width, height, dilation, vis):
+@njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
+def _cull(i0_, i1_, positions, scales, opacities, include, cams, width, height, dilation, vis):
     """Fill ``vis`` (N,) int64: per Gaussian, the bit mask of the cameras whose image its support
     may touch (conservative).
 
@@ -235,7 +235,7 @@ def _cull(positions, scales, opacities, include, cams, width, height, dilation, 
     n = positions.shape[0]
     ncam = cams.shape[0]
     use_mask = include.shape[0] == n
-    for g in prange(n):
+    for g in range(i0_, i1_):
         vis[g] = 0
         if use_mask and not include[g]:
             continue
@@ -379,17 +379,19 @@ def _write_range(g0, g1, positions, quats, scales, opacities, sh, vis, off, view
                         clamp, cam_pos, width, height, dilation, antialiased, rec, info, depth32)
 
 
-@njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
-def _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _write_entries(c0, c1, positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
                    cam_pos, width, height, dilation, antialiased, rec, info, depth32):
-    """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order.
+    """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order, for
+    the Gaussian chunks ``c0..c1-1`` (``_CHUNK`` Gaussians each; run in threads by
+    ``thread_chunks.run_chunks``).
 
     Fills rec (M,16) float32 records (rows of rejected entries are left unset: never read),
     info (M,5) int32 (camera, or -1 when the exact test rejects it; pixel bbox j0, j1, i0, i1)
     and depth32 (M,) float32 view depth (inf when rejected).
     """
     n = positions.shape[0]
-    for ch in prange((n + _CHUNK - 1) // _CHUNK):
+    for ch in range(c0, c1):
         _write_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, quats, scales,
                      opacities, sh, vis, off, view_rot, view_t, intr, clamp, cam_pos, width, height, dilation,
                      antialiased, rec, info, depth32)
@@ -604,10 +606,11 @@ def _blend_tile(rec, depth_bits, tile_start, tile_list, t, per_cam, tiles_x, wid
     evals[t] = nev
 
 
-@njit(parallel=prange_only(), cache=True, fastmath=False, error_model="numpy")
-def _blend(rec, depth_bits, tile_start, tile_list, order, tiles_x, tiles_y, tile, color, trans, depth, processed,
-           evals):
-    """Per tile (prange): order its entries by (float32 depth, entry index), blend front to back.
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _blend(o0, o1, rec, depth_bits, tile_start, tile_list, order, tiles_x, tiles_y, tile, color, trans, depth,
+           processed, evals):
+    """Tiles ``order[o0:o1]`` (run in threads by ``thread_chunks.run_chunks``): order each tile's
+    entries by (float32 depth, entry index), blend front to back.
 
     Fills colour (K,H,W,3) (zeros on entry), transmittance (K,H,W) (ones), expected depth (K,H,W)
     (zeros) float32 and, per tile (T,) int64, the number of entries processed before all its pixels
@@ -616,8 +619,7 @@ def _blend(rec, depth_bits, tile_start, tile_list, order, tiles_x, tiles_y, tile
     height = color.shape[1]
     width = color.shape[2]
     per_cam = tiles_x * tiles_y
-    ntiles = tile_start.shape[0] - 1
-    for oi in prange(ntiles):
+    for oi in range(o0, o1):
         _blend_tile(rec, depth_bits, tile_start, tile_list, order[oi], per_cam, tiles_x, width, height, tile, color,
                     trans, depth, processed, evals)
 
@@ -690,7 +692,7 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp], axis=1))
     # large buffers are allocated by numpy (huge-page advice: far fewer page faults than numba's allocator)
     vis = np.empty(n, np.int64)
-    _cull(positions, scales, opacities, include, cams, width, height, dilation, vis)
+    run_chunks(_cull, n, positions, scales, opacities, include, cams, width, height, dilation, vis, min_chunk=4096)
     off = np.empty(n + 1, np.int64)
     _visible_offsets(vis, off)
     m = int(off[-1])
@@ -699,8 +701,8 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     rec = _aligned_empty((m, _NF), np.float32)  # one 64-byte cache line per record
     info = np.empty((m, 5), np.int32)
     depth32 = np.empty(m, np.float32)
-    _write_entries(positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp, cam_pos,
-                   width, height, dilation, bool(antialiased), rec, info, depth32)
+    run_chunks(_write_entries, (n + _CHUNK - 1) // _CHUNK, positions, quats, scales, opacities, sh, vis, off,
+               view_rot, view_t, intr, clamp, cam_pos, width, height, dilation, bool(antialiased), rec, info, depth32)
     tile_start, tile_list = _bin_tiles(info, ncam, tiles_x, tiles_y, tile, 16)
     ntiles = ncam * tiles_x * tiles_y
     color = np.zeros((ncam, height, width, 3), np.float32)
@@ -709,8 +711,8 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     processed = np.zeros(ntiles, np.int64)
     evals = np.zeros(ntiles, np.int64)
     # positive float32 depths order like their bit patterns
-    _blend(rec, depth32.view(np.uint32), tile_start, tile_list, _tile_order(ntiles), tiles_x, tiles_y, tile, color,
-           trans, depth, processed, evals)
+    run_chunks(_blend, ntiles, rec, depth32.view(np.uint32), tile_start, tile_list, _tile_order(ntiles), tiles_x,
+               tiles_y, tile, color, trans, depth, processed, evals)
     stats = {"culled_pass": int(off[-1]), "entries": int(np.count_nonzero(info[:, 0] >= 0)),
              "pairs": int(tile_list.shape[0]), "pairs_blended": int(processed.sum()),
              "pixel_evals": int(evals.sum())}

@@ -4,10 +4,8 @@ and the parallel JIT warm-up (usd_gs.jit_warmup) creates exactly one per rasteri
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from numba_kernels import rasterize, sh_transfer
-from numba_kernels.jit_options import prange_only
 from numba_kernels.sh_transfer import relight_sh_coefficients
 
 
@@ -34,11 +32,3 @@ def test_warm_up_compiles_one_specialisation_per_rasteriser_kernel():
     jit_warmup.warm_up()
     for kernel in (rasterize._cull, rasterize._write_entries, rasterize._bin_tiles, rasterize._blend):
         assert len(kernel.signatures) == 1, kernel
-    # numba types a parallel loop's body twice (in the kernel, then as an outlined gufunc whose loop
-    # index is uint64): the chunk helper must see the same argument types both times, or it is
-    # compiled twice (it is when the raw prange index is passed). A fresh, uncached copy of the
-    # kernel forces both typings.
-    sig = rasterize._write_entries.signatures[0]
-    fresh = njit(parallel=prange_only(), fastmath=False, error_model="numpy")(rasterize._write_entries.py_func)
-    fresh.compile(sig)
-    assert len(rasterize._write_range.signatures) == 1

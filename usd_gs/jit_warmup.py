@@ -40,9 +40,9 @@ import numpy as np
 #: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
 SENTINEL = ("numba_kernels.rasterize", "_blend")
 #: every group, in the order :func:`warm_up` compiles them
-GROUPS = ("prep", "refine", "relight", "shadows")
+GROUPS = ("refine", "relight", "shadows")
 #: the groups the background process compiles (the main job compiles the others itself)
-BACKGROUND = ("prep", "relight")
+BACKGROUND = ("relight",)
 #: seconds the main process waits at most for one group
 WAIT_LIMIT = 120.0
 
@@ -158,9 +158,8 @@ def _fake_atlas(occ_count: int):
 
 
 def warm_up(groups=GROUPS) -> None:
-    """Call the main job's kernels on tiny inputs, group by group (module doc): ``prep`` the
-    occluder packing and the atlas pixel directions, ``refine`` the shadow maps' refined
-    sampling, ``relight`` normals, probe render, fit and SH transfer,
+    """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
+    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
     ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
     shared atlas, light combination). Marks each group when done (see :func:`start`)."""
     from numba_kernels import dgsm_build, dgsm_sample
@@ -182,10 +181,6 @@ def warm_up(groups=GROUPS) -> None:
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
     occ, dir_dep = np.zeros((4, 16)), 0
     atlas = _fake_atlas(len(occ))
-    if "prep" in groups:
-        prepare_occluders(avatar, opts.dgsm)
-        dgsm_build.pixel_directions(np.arange(4, dtype=np.int64), atlas.width)
-        _mark("prep")
     if "refine" in groups:  # shadow-map sampling with exact refinement, on a hand-made atlas
         pts = np.ascontiguousarray(light.position + np.array([[0.01, 0.02, 1.0]]) * np.linspace(0.5, 3.5, 16)[:, None])
         dgsm_sample.lookup_point_refined(atlas, light.position, pts, occ, dir_dep, opts.dgsm.refine_contrast)

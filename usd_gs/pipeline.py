@@ -289,7 +289,6 @@ class ShotProcessor:
         self._casters_dyn = [r.path for r in self.roles if r.dynamic and r.casts_shadows and r.role != "scene"]
 
     def _frame(self, frame: float, author, probe_dir: Path):
-        from . import jit_warmup
         from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
         from .shadows import prepare_occluders
         from .shot_shadows import (
@@ -316,7 +315,6 @@ class ShotProcessor:
         t = clk.add("prepare", t)
 
         cfg = self.opts.dgsm
-        jit_warmup.wait_for("prep")  # cold cache: the warm-up process compiles the occluder packing
         packed = {q: prepare_occluders(sets[q], cfg) for q in self._casters_dyn} if lights else {}
         bound = {q: occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
         # moving receivers: prim-level culling against each caster's beam, as for the bricks
