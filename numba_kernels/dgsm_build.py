@@ -46,6 +46,7 @@ import numpy as np
 from numba import njit
 
 from .dgsm_model import Z_SATURATED, check_points, check_vector, ray_params
+from .jit_options import threaded
 from .octahedral import OCT_LIPSCHITZ, oct_decode, oct_encode, pixel_center_uv, uv_to_pixel_coords, wrap_pixel
 from .thread_chunks import run_chunks
 
@@ -82,7 +83,7 @@ class Atlas(NamedTuple):
 
 
 # --------------------------------------------------------------------------- ROI
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk):
     for m in range(i0_, i1_):
         vx = pts[m, 0] - light[0]
@@ -215,7 +216,7 @@ def _visit_tiles(i, fx, fy, rp, wt, tile_active, stamp, counts, items, fill, fil
                 counts[t] += 1
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _footprints(i0_, i1_, light, mu, cov, w, k_sigma, fxs, fys, rps, is_glob, cone):
     for i in range(i0_, i1_):
         g, fx, fy, rp, cth = _footprint(light, mu, cov, np.int64(i), w, k_sigma)
@@ -237,7 +238,7 @@ BIN_CHUNKS = 64  # at most, and at least BIN_CHUNK_MIN occluders per chunk
 BIN_CHUNK_MIN = 4096
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _bin_count(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, counts):
     """Pass 1 of :func:`_bin_tiles_chunked` for occluder chunks ``c0..c1-1``: (tile, occluder)
     entries per chunk and tile into ``counts[c]``, each chunk with its own stamp array."""
@@ -252,7 +253,7 @@ def _bin_count(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, counts):
                 _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, cnt, dummy, dummy, False)
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _bin_fill(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, offs, items):
     """Pass 2 of :func:`_bin_tiles_chunked`: chunk c writes its entries from ``offs[c]`` on."""
     n = fxs.shape[0]
@@ -395,7 +396,7 @@ def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin
 accumulate_one_call = njit(cache=True, fastmath=False)(_accumulate_one.py_func)
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                       group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, bin_skip,
                       out, pairs, erfs):
@@ -450,7 +451,7 @@ def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
             erfs[p] = ne[a]
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _pixel_dirs(i0_, i1_, pixels, w, out):
     for p in range(i0_, i1_):
         u, v = pixel_center_uv(pixels[p] // w, pixels[p] % w, w)

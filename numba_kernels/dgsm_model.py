@@ -59,6 +59,7 @@ import numpy as np
 from numba import njit
 
 from .erf_stable import erf_diff_nonneg
+from .jit_options import threaded
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
@@ -238,7 +239,7 @@ depth_from_light_call = njit(cache=True, fastmath=False)(depth_from_light.py_fun
 MAPPING_CODES = {"avg": 0, "simple": 1, "mass": 2, "diag": 3}
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _pack_gaussians(i0_, i1_, pos, quat, scales, alpha, kappa, code, occ, cov6):
     two_pi_15 = (2.0 * math.pi) ** 1.5
     for n in range(i0_, i1_):

@@ -25,7 +25,7 @@ from numba import njit, prange
 
 from .dgsm_build import cone_hits
 from .dgsm_model import depth_from_light, depth_from_light_call
-from .jit_options import prange_only
+from .jit_options import prange_only, threaded
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
@@ -105,7 +105,7 @@ def lookup_point(atlas, light, points) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _lookup_flag(i0_, i1_, index, values, w, K, t_max, kmin, kmax, light, pts, contrast, out, refined, tile):
     wt = w // 8
     ox, oy, oz = light[0], light[1], light[2]
@@ -163,7 +163,7 @@ def _refine_group(g, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, t
         out[rows[r0 + a]] = math.exp(-tau[a])
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _refine_groups(i0_, i1_, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob,
                    cone, out):
     """Exact depth for the flagged points, grouped by culling tile: each tile's occluder list
@@ -301,7 +301,7 @@ def hash_normals(seed, rid, s):
     return r1 * math.cos(2.0 * math.pi * u2), r1 * math.sin(2.0 * math.pi * u2), r2 * math.cos(2.0 * math.pi * u4)
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, **threaded(), fastmath=False)
 def _footprints_q(i0_, i1_, pos, quat, scales, idx, mode, n, seed, out):
     for r in range(i0_, i1_):
         g = idx[r]

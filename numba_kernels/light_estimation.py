@@ -71,6 +71,7 @@ import numpy as np
 from numba import njit, prange
 
 from .grid_neighbours import build_grid, grid_values, radius_sum
+from .jit_options import threaded
 from .thread_chunks import run_chunks
 
 C0 = 0.28209479177387814
@@ -216,7 +217,7 @@ def _cues_range(i0, i1, positions, opacities, sh, deg, centroid, viewpoints, r2,
                   status, mean_y, max_y, stability, dominance, lum)
 
 
-@njit(nogil=True, cache=True, fastmath=False)
+@njit(**threaded(), cache=True, fastmath=False)
 def _cues_chunks(c0, c1, positions, opacities, sh, deg, centroid, viewpoints, r2, min_opacity, max_weight, status,
                  mean_y, max_y, stability, dominance, lum):
     """Chunks ``c0..c1-1`` of ``_CHUNK`` Gaussians of :func:`score_cues` (threads: ``thread_chunks``)."""

@@ -60,6 +60,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import threaded
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
@@ -284,7 +285,7 @@ def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, ord
             cov[i, 5] += wj * d2 * d2
 
 
-@njit(nogil=True, cache=True, fastmath=False)
+@njit(**threaded(), cache=True, fastmath=False)
 def _local_stats_kernel(c0, c1, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
                         iso_ratio, axis, ratio, centroid, count, cov, nbr):
     """Per Gaussian: smallest axis and scale ratio, opacity-weighted neighbour centroid,
@@ -296,7 +297,7 @@ def _local_stats_kernel(c0, c1, pos, quat, scales, opac, origin, radius, mask, o
                            max_nb, iso_ratio, axis, ratio, centroid, count, cov, nbr)
 
 
-@njit(nogil=True, cache=True, fastmath=False)
+@njit(**threaded(), cache=True, fastmath=False)
 def _consistency_kernel(i0_, i1_, pos, opac, nin, nbr, active, nout):
     """One Jacobi pass: flip n_i when the opacity-weighted vote of tangential neighbours is < 0
     (only where ``active``; elsewhere n_i is copied). Gaussians ``i0_..i1_-1`` (threads:

@@ -62,6 +62,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .jit_options import threaded
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
@@ -224,7 +225,7 @@ def _sh_color(sh, g, dx, dy, dz):
     return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
 
 
-@njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
+@njit(**threaded(), cache=True, fastmath=False, error_model="numpy")
 def _cull(i0_, i1_, positions, scales, opacities, include, cams, width, height, dilation, vis):
     """Fill ``vis`` (N,) int64: per Gaussian, the bit mask of the cameras whose image its support
     may touch (conservative).
@@ -379,7 +380,7 @@ def _write_range(g0, g1, positions, quats, scales, opacities, sh, vis, off, view
                         clamp, cam_pos, width, height, dilation, antialiased, rec, info, depth32)
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+@njit(cache=True, **threaded(), fastmath=False, error_model="numpy")
 def _write_entries(c0, c1, positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
                    cam_pos, width, height, dilation, antialiased, rec, info, depth32):
     """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order, for
@@ -606,7 +607,7 @@ def _blend_tile(rec, depth_bits, tile_start, tile_list, t, per_cam, tiles_x, wid
     evals[t] = nev
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+@njit(cache=True, **threaded(), fastmath=False, error_model="numpy")
 def _blend(o0, o1, rec, depth_bits, tile_start, tile_list, order, tiles_x, tiles_y, tile, color, trans, depth,
            processed, evals):
     """Tiles ``order[o0:o1]`` (run in threads by ``thread_chunks.run_chunks``): order each tile's
