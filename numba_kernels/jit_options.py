@@ -6,6 +6,11 @@ expressions, slice assignments and reductions inside the kernel into extra paral
 only through explicit ``prange`` loops and allocate their work arrays with ``np.empty`` /
 ``np.zeros``, so those rewrites only make compilation slower (measured: ``rasterize._blend``
 3.9 s -> 2.4 s of its own compile time) and the allocations run serially either way.
+
+The kernels of the main job's hot path go further and have no ``prange`` at all
+(:func:`threaded`): ``numba_kernels.thread_chunks.run_chunks`` runs them on index ranges in a
+thread pool, which saves the second typing of every parallel loop body (cold-cache compile of
+the shadow-map kernels 13.5 -> 8 s, of the relighting 16.3 -> 13 s).
 """
 
 from __future__ import annotations

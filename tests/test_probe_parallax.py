@@ -121,3 +121,15 @@ def test_probe_blend_weights_follow_the_prim():
     assert np.allclose(b.centres(x + 0.5), cluster_centres(x, b.labels, 6) + 0.5)  # points follow the prim
     one = ProbeBlend.build(x, 1)
     assert one.k == 1 and np.all(one.weights == 1.0)
+
+
+def test_process_options_check_probe_points_and_transfer_degree():
+    import pytest
+
+    from usd_gs.errors import UserError
+    from usd_gs.pipeline import ProcessOptions
+
+    assert ProcessOptions().check().probe_points == 8
+    for bad in (dict(probe_points=0), dict(probe_points=65), dict(transfer_degree=9), dict(transfer_degree=-1)):
+        with pytest.raises(UserError):
+            ProcessOptions(**bad).check()
