@@ -238,3 +238,28 @@ def test_distant_light_uses_directional_dgsm(quick_demo, tmp_path):
     got, ref = np.concatenate(got), np.concatenate(ref)
     assert (ref < 0.5).sum() > 20
     assert np.abs(got - ref).mean() < 0.01
+
+
+def test_fresh_checkout_generates_the_missing_demo_stage(tmp_path, monkeypatch, capsys):
+    """`usdgs process stages/demo.usda` in a checkout where the (git-ignored) demo was never made:
+    the demo is generated first (here the --quick one, for time), then processed. Any other
+    missing stage is still an error naming the file."""
+    from usd_gs import demo_stage
+    from usd_gs.cli import main
+    from usd_gs.cmd_process import is_missing_demo
+
+    stages = tmp_path / "stages"
+    stages.mkdir()
+    demo = stages / "demo.usda"
+    assert not is_missing_demo(demo)  # not this project's stages folder (no make_example.py)
+    (stages / "make_example.py").write_text("# marker\n")
+    assert is_missing_demo(demo) and not is_missing_demo(stages / "other.usda")
+    real = demo_stage.make_demo
+    monkeypatch.setattr(demo_stage, "make_demo", lambda out, opts, data, log=None: real(out, demo_stage.QUICK,
+                                                                                         data, log))
+    assert main(["process", str(demo), "--frames", "1-2", "-o", str(tmp_path / "lit.usdc")]) == 0
+    out = capsys.readouterr().out
+    assert "does not exist yet: generating the demo shot" in out and "2 frame(s)" in out
+    assert demo.exists() and (tmp_path / "lit.usdc").exists()
+    assert main(["process", str(stages / "other.usda")]) == 2
+    assert "other.usda: no such file" in capsys.readouterr().err

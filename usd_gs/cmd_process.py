@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from .errors import UserError
 
@@ -58,11 +59,32 @@ def build_options(args):
                           object_paths=tuple(args.object or ()), dgsm=dgsm, **kw)
 
 
+def is_missing_demo(path) -> bool:
+    """True for a ``stages/demo.usda`` that does not exist yet in this project's ``stages/``
+    folder (the one holding ``make_example.py``): the demo shot is generated, not checked in."""
+    p = Path(path)
+    return (not p.exists() and p.name == "demo.usda" and p.parent.name == "stages"
+            and (p.parent / "make_example.py").is_file())
+
+
+def make_missing_demo(path, quiet: bool) -> None:
+    """Generate the default demo shot at ``path`` (what ``usdgs demo make`` writes), printing
+    one line first unless ``quiet``; ``UserError`` when ../shared/data is missing."""
+    from .demo_stage import DemoOptions, make_demo
+
+    if not quiet:
+        print(f"{path} does not exist yet: generating the demo shot from the shared captures "
+              "(the same as 'usdgs demo make')", flush=True)
+    make_demo(str(path), DemoOptions(), None, log=None)
+
+
 def cmd_process(args) -> int:
     from .pipeline import ShotProcessor, default_output_path
     from .roles import role_table
     from .stage_open import check_usd_output_path
 
+    if is_missing_demo(args.stage):  # a fresh checkout: `usdgs process stages/demo.usda` just works
+        make_missing_demo(args.stage, args.quiet or args.json)
     out = args.output or default_output_path(args.stage)
     check_usd_output_path(out)
     opts = build_options(args)
