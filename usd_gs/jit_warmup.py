@@ -92,8 +92,11 @@ def start() -> WarmUp | None:
     if os.environ.get("USDGS_JIT_WARMUP", "1") == "0" or not cache_is_cold():
         return None
     markers = Path(tempfile.mkdtemp(prefix="usdgs_warmup_"))
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0", USDGS_JIT_WARMUP_MARKERS=str(markers))
-    proc = subprocess.Popen([sys.executable, "-m", "usd_gs.jit_warmup", *BACKGROUND], env=env,
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0", USDGS_JIT_WARMUP_MARKERS=str(markers),
+               USDGS_JIT_WARMUP_PACKAGE=_package_dir())
+    # -P: no current directory on sys.path, so that a checkout's source tree does not shadow the
+    # installed package the main process runs (numba cache entries belong to one source file)
+    proc = subprocess.Popen([sys.executable, "-P", "-m", "usd_gs.jit_warmup", *BACKGROUND], env=env,
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     _ACTIVE[0] = WarmUp(proc, markers)
     return _ACTIVE[0]
@@ -123,6 +126,11 @@ def stop(warm) -> None:
         shutil.rmtree(warm.markers, ignore_errors=True)
         if _ACTIVE[0] is warm:
             _ACTIVE[0] = None
+
+
+def _package_dir() -> str:
+    """Folder of the ``usd_gs`` package this process imported."""
+    return str(Path(__file__).resolve().parent)
 
 
 def _mark(group: str) -> None:
@@ -220,4 +228,8 @@ if __name__ == "__main__":
     unknown = set(sys.argv[1:]) - set(GROUPS)
     if unknown:
         raise SystemExit(f"usd_gs.jit_warmup: unknown group(s) {sorted(unknown)}; groups are {GROUPS}")
+    wanted = os.environ.get("USDGS_JIT_WARMUP_PACKAGE")
+    if wanted and wanted != _package_dir():
+        # another copy of the package than the main process's: its cache entries would not be used
+        raise SystemExit(f"usd_gs.jit_warmup: this is {_package_dir()}, the main process runs {wanted}")
     warm_up(tuple(sys.argv[1:]) or GROUPS)
