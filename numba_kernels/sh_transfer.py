@@ -33,8 +33,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .jit_options import prange_only
+from .jit_options import prange_only, threaded
 from .sh_real import NORM, band_of_index, cosine_lobe_band_factors, degree_from_num_coeffs, sh_eval_batch
+from .thread_chunks import run_chunks
 
 C0_3DGS = 0.28209479177387814
 _CHUNK = 256
@@ -57,17 +58,17 @@ def _clip(r, t_max):
     return t_max if r > t_max else r
 
 
-@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
-def _scale_sh_kernel(normals, weighted_probes, blend, den, degree, t_max, eps, norm, out):
+@njit(cache=True, fastmath=False, **threaded())
+def _scale_sh_kernel(c0, c1, normals, weighted_probes, blend, den, degree, t_max, eps, norm, out):
     """out[i] = sum_p blend[i, p] * clip(ratio of probe p) (eq. 10 per probe, blended);
-    ``blend`` (1, P) applies its one row to every Gaussian."""
+    ``blend`` (1, P) applies its one row to every Gaussian. Chunks ``c0..c1-1`` of ``_CHUNK``
+    Gaussians (threads: ``thread_chunks.run_chunks``)."""
     n = normals.shape[0]
     k = (degree + 1) * (degree + 1)
     n_probes = weighted_probes.shape[0]
     shared = blend.shape[0] == 1
-    n_chunks = (n + _CHUNK - 1) // _CHUNK
     iso = math.sqrt(4.0 * math.pi)  # integral of L over the sphere = sqrt(4 pi) L_00
-    for ch in prange(n_chunks):
+    for ch in range(c0, c1):
         i0 = ch * _CHUNK
         gn = min(n, i0 + _CHUNK) - i0
         x = np.empty(gn, dtype=np.float64)
@@ -158,7 +159,8 @@ def transfer_scale_sh(normals: np.ndarray, probe_rh: np.ndarray, q: float = 1.0,
     a_l = cosine_lobe_band_factors(q, degree)
     weighted = np.ascontiguousarray(probe * a_l[band_of_index(degree)][None, :, None])
     out = np.empty((nrm.shape[0], 3), dtype=np.float32)
-    _scale_sh_kernel(nrm, weighted, w, float(a_l[0]), degree, t_max, eps, NORM, out)
+    run_chunks(_scale_sh_kernel, (nrm.shape[0] + _CHUNK - 1) // _CHUNK, nrm, weighted, w, float(a_l[0]), degree,
+               t_max, eps, NORM, out)
     return out
 
 
