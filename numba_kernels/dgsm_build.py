@@ -239,32 +239,18 @@ BIN_CHUNK_MIN = 4096
 
 
 @njit(cache=True, **threaded(), fastmath=False)
-def _bin_count(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, counts):
-    """Pass 1 of :func:`_bin_tiles_chunked` for occluder chunks ``c0..c1-1``: (tile, occluder)
-    entries per chunk and tile into ``counts[c]``, each chunk with its own stamp array."""
+def _bin_pass(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, rows, items, fill_mode):
+    """One pass of :func:`_bin_tiles_chunked` for occluder chunks ``c0..c1-1``, each with its own
+    stamp array: ``fill_mode`` False counts chunk c's (tile, occluder) entries into ``rows[c]``;
+    True writes them to ``items`` from the offsets ``rows[c]`` on (advanced in place)."""
     n = fxs.shape[0]
     wt = w // TILE
-    dummy = np.zeros(1, np.int64)
     for c in range(c0, c1):
         stamp = np.zeros(wt * wt, np.int64)
-        cnt = counts[c]
+        row = rows[c]
         for i in range(c * step, min((c + 1) * step, n)):
             if not is_glob[i]:
-                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, cnt, dummy, dummy, False)
-
-
-@njit(cache=True, **threaded(), fastmath=False)
-def _bin_fill(c0, c1, fxs, fys, rps, is_glob, w, tile_active, step, offs, items):
-    """Pass 2 of :func:`_bin_tiles_chunked`: chunk c writes its entries from ``offs[c]`` on."""
-    n = fxs.shape[0]
-    wt = w // TILE
-    dummy = np.zeros(1, np.int64)
-    for c in range(c0, c1):
-        stamp = np.zeros(wt * wt, np.int64)
-        fill = offs[c]
-        for i in range(c * step, min((c + 1) * step, n)):
-            if not is_glob[i]:
-                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, dummy, items, fill, True)
+                _visit_tiles(i, fxs[i], fys[i], rps[i], wt, tile_active, stamp, row, items, row, fill_mode)
 
 
 def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
@@ -280,7 +266,8 @@ def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
     nc = min(BIN_CHUNKS, max(n // BIN_CHUNK_MIN, 1))
     step = (n + nc - 1) // nc
     counts = np.zeros((nc, nt), np.int64)
-    run_chunks(_bin_count, nc, fxs, fys, rps, is_glob, int(w), tile_active, step, counts, chunks_per_thread=1)
+    run_chunks(_bin_pass, nc, fxs, fys, rps, is_glob, int(w), tile_active, step, counts, np.zeros(1, np.int64),
+               False, chunks_per_thread=1)
     # tile-major prefix sum over (tile, chunk): chunk c of tile t starts after all earlier tiles
     # and the earlier chunks of tile t
     flat = counts.T.reshape(-1)
@@ -288,7 +275,8 @@ def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
     offs = excl[:-1].reshape(nt, nc).T.copy()  # copies: the fill pass advances offs in place
     start = excl[::nc].copy()  # (nt + 1,): excl[nt * nc] is the total
     items = np.empty(int(excl[-1]), np.int64)
-    run_chunks(_bin_fill, nc, fxs, fys, rps, is_glob, int(w), tile_active, step, offs, items, chunks_per_thread=1)
+    run_chunks(_bin_pass, nc, fxs, fys, rps, is_glob, int(w), tile_active, step, offs, items, True,
+               chunks_per_thread=1)
     return start, items
 
 

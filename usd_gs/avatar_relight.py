@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .probe import PROBE_DILATION, SHProbe, fit_probe
+from .probe import PROBE_DILATION, SHProbe, fit_probe, render_probe_faces
 
 
 def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
@@ -32,10 +32,8 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     ``ProcessOptions`` (probe_size, probe_degree, transfer_degree, relight_q, relight_t_max)."""
     from .probe_parallax import cube_texels, reprojected_probes
     from .relight import relight_scale
-    from .render import render_cube_faces
 
-    rgb, alpha, depth = render_cube_faces(everything, centre, opts.probe_size, mask=mask, antialiased=True,
-                                          dilation=float(dilation))
+    rgb, alpha, depth = render_probe_faces(everything, centre, opts.probe_size, mask, dilation)
     probe = fit_probe(rgb, degree=opts.probe_degree, alpha=alpha, center=centre)
     q, t_max = opts.relight_q, opts.relight_t_max
     if blend is None or blend.k == 1:

@@ -95,6 +95,8 @@ def cmd_assemble(args) -> int:
 
 
 def register_lights(sub, formatter):
+    from .cmd_process import add_role_options
+
     p = sub.add_parser(
         "lights", formatter_class=formatter, help="estimate a shot's lights once (the serial step of a farm run)",
         description="Estimate the shot's dominant lights once over the frame range (as usdgs process does) and "
@@ -105,9 +107,7 @@ def register_lights(sub, formatter):
     p.add_argument("-o", "--output", required=True, help="lights layer to write (.usda/.usdc)")
     p.add_argument("--frames", help="frames the estimate is for (default: the stage's range)")
     p.add_argument("--lights", help="number of lights to estimate (default 2; 'auto' refuses stages with lights)")
-    p.add_argument("--avatar", action="append", metavar="PATH", help="treat this prim as an avatar (repeatable)")
-    p.add_argument("--object", action="append", metavar="PATH", help="treat this prim as an inserted object")
-    p.add_argument("--scene", action="append", metavar="PATH", help="treat this prim as scene")
+    add_role_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=cmd_lights)
 

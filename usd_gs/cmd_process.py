@@ -125,6 +125,13 @@ def cmd_process(args) -> int:
     return 0
 
 
+def add_role_options(p) -> None:
+    """--avatar/--object/--scene: roles given on the command line (``usdgs process`` and ``usdgs lights``)."""
+    p.add_argument("--avatar", action="append", metavar="PATH", help="treat this prim as an avatar (repeatable)")
+    p.add_argument("--object", action="append", metavar="PATH", help="treat this prim as an inserted object")
+    p.add_argument("--scene", action="append", metavar="PATH", help="treat this prim as scene")
+
+
 def register_process(sub, formatter):
     p = sub.add_parser(
         "process", formatter_class=formatter, help="shadows and relighting for every frame of a shot",
@@ -140,9 +147,7 @@ def register_process(sub, formatter):
     p.add_argument("--lights", help="'auto' (stage lights, else estimate 2), 'stage' (UsdLux lights only) or N "
                                     "(estimate N lights) (default: auto)")
     p.add_argument("--lights-per-frame", action="store_true", help="re-estimate lights at every frame")
-    p.add_argument("--avatar", action="append", metavar="PATH", help="treat this prim as an avatar (repeatable)")
-    p.add_argument("--object", action="append", metavar="PATH", help="treat this prim as an inserted object")
-    p.add_argument("--scene", action="append", metavar="PATH", help="treat this prim as scene")
+    add_role_options(p)
     p.add_argument("--direct-fraction", type=float,
                    help="share of a receiver's colour that is direct light and can be shadowed (default 1)")
     p.add_argument("--probe-points", type=int, metavar="K",

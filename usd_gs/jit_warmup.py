@@ -31,7 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -52,14 +52,12 @@ class WarmUp:
 
     proc: subprocess.Popen
     markers: Path
-    done: set | None = None
+    done: set = field(default_factory=set)  # groups seen finished
 
     def wait(self, group: str) -> None:
         """Block until ``group`` is compiled (its marker exists), the process has ended, or
         :data:`WAIT_LIMIT` seconds have passed; returns at once for a group it does not compile
         or has been seen finished."""
-        if self.done is None:
-            self.done = set()
         if group not in BACKGROUND or group in self.done:
             return
         t0 = time.perf_counter()

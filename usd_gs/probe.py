@@ -34,7 +34,7 @@ from .gaussians import GaussianSet
 _MAX_DEGREE = 8
 
 
-PROBE_DILATION = 0.0  # px^2: probe renders measure radiance (see render_probe)
+PROBE_DILATION = 0.0  # px^2: probe renders measure radiance (see render_probe_faces)
 
 
 def _signs_rh_3dgs(k: int) -> np.ndarray:
@@ -169,23 +169,22 @@ def fit_probe(faces: np.ndarray, degree: int = 3, lam: float = 1e-3, center=None
     return _stored(coeffs, center)
 
 
-def render_probe(gaussians, centre, size: int = 32, degree: int = 3, mask: np.ndarray | None = None,
-                 dilation: float = PROBE_DILATION) -> SHProbe:
-    """The environment probe of paper 3.4 at ``centre`` (3,) metres: six ``size``^2 cube faces
-    of ``gaussians`` (world space; ``mask`` (N,) bool selects the Gaussians drawn, e.g. all
-    but the avatar being relit), then :func:`fit_probe` to SH ``degree`` with the coverage as
-    weights.
+def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | None = None,
+                       dilation: float = PROBE_DILATION):
+    """The cube render of a probe (paper 3.4) at ``centre`` (3,) metres: six ``size``^2 faces of
+    ``gaussians`` (world space; ``mask`` (N,) bool selects the Gaussians drawn, e.g. all but the
+    avatar being relit), as ``(rgb, alpha, depth)`` of ``usd_gs.render.render_cube_faces``; fit
+    it with ``fit_probe(rgb, alpha=alpha)``.
 
     The probe measures radiance, so the display low-pass filter is off (``PROBE_DILATION`` =
     0 px^2; any other ``dilation`` is applied opacity-compensated, ``antialiased``). Measured
     on the known-light ground truth (``usd_gs.relight_groundtruth``, lamp + environment, mesh
-    normals): 26.1 dB at 32^2 and 64^2 faces without dilation; the 3DGS 0.3 px^2 dilation
-    gives 11.5 dB plain (the small lamp comes out ~3x too bright) and 19.3 / 22.2 dB
+    normals, one probe): 26.1 dB at 32^2 and 64^2 faces without dilation; the 3DGS 0.3 px^2
+    dilation gives 11.5 dB plain (the small lamp comes out ~3x too bright) and 19.3 / 22.2 dB
     compensated (the 1/255 alpha floor then drops the blurred lamp's tails)."""
     from .render import render_cube_faces
 
-    rgb, alpha, _ = render_cube_faces(gaussians, centre, size, mask=mask, antialiased=True, dilation=float(dilation))
-    return fit_probe(rgb, degree=degree, alpha=alpha, center=centre)
+    return render_cube_faces(gaussians, centre, size, mask=mask, antialiased=True, dilation=float(dilation))
 
 
 def probe_from_latlong(img: np.ndarray, degree: int = 3, center=None) -> SHProbe:

@@ -24,9 +24,10 @@ separate DGSM step). A second reference, ``E`` evaluated at the probe centre for
 Gaussian, isolates the probe + transfer error from the one-probe-per-avatar assumption.
 
 The relighting under test is the project's path, called as ``ShotProcessor._relight`` calls
-it: cube faces at the avatar's alpha-weighted centroid from everything else
-(``probe.render_probe``), ``gaussian_normals`` and ``relight_sh`` with the
-``ProcessOptions`` defaults. Eq. 10 divides by ``int S = pi`` (q = 1), so the relit colour of
+it: ``gaussian_normals``, the shot's ``probe_parallax.ProbeBlend`` and
+``avatar_relight.relight_factors`` (cube faces at the avatar's alpha-weighted centroid from
+everything else, parallax-corrected probes, SH transfer) with the ``ProcessOptions`` defaults.
+Eq. 10 divides by ``int S = pi`` (q = 1), so the relit colour of
 an avatar whose colour is its albedo is ``albedo * E_probe(n) / pi``: the same units as the
 ground truth, no exposure factor.
 """
