@@ -263,3 +263,30 @@ def test_fresh_checkout_generates_the_missing_demo_stage(tmp_path, monkeypatch, 
     assert demo.exists() and (tmp_path / "lit.usdc").exists()
     assert main(["process", str(stages / "other.usda")]) == 2
     assert "other.usda: no such file" in capsys.readouterr().err
+
+
+def test_a_static_avatar_is_relit_and_casts(tmp_path):
+    """An avatar without time samples (an inserted character in one pose) is processed like a
+    moving one: relit (lightScale and a probe) and its shadow falls on the scene."""
+    from pxr import Usd
+
+    from lights_scene import make_emitter_test_scene
+    from usd_gs.cli import main
+    from usd_gs.synthetic import random_gaussians
+    from usd_gs.usd_io import new_stage, save_stage_atomic, write_gaussian_prim
+
+    room = make_emitter_test_scene(spacing=0.2).gaussians
+    avatar = random_gaussians(400, 0, seed=3)
+    avatar.positions[:] = avatar.positions * 0.05 + np.array([0.0, 1.0, 0.0], np.float32)  # 1 m up, ~0.3 m wide
+    stage = new_stage()
+    write_gaussian_prim(stage, "/World/Room", room)
+    write_gaussian_prim(stage, "/World/Statue", avatar)
+    src = save_stage_atomic(stage, tmp_path / "shot.usda")
+    out = tmp_path / "shot.lit.usdc"
+    assert main(["process", str(src), "--avatar", "/World/Statue", "--lights", "2", "-o", str(out), "-q"]) == 0
+    lit = Usd.Stage.Open(str(out))
+    scale = lit.GetPrimAtPath("/World/Statue").GetAttribute("primvars:usdgs:lightScale")
+    assert scale and scale.GetNumTimeSamples() >= 1 and len(scale.Get(scale.GetTimeSamples()[0])) == avatar.count
+    assert lit.GetPrimAtPath("/UsdGs/Probes/Statue")
+    t = lit.GetPrimAtPath("/World/Room").GetAttribute("primvars:usdgs:transmittance")
+    assert t and np.min(np.asarray(t.Get(t.GetTimeSamples()[0]))) < 0.9  # the statue shadows the room

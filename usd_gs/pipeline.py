@@ -201,7 +201,7 @@ class ShotProcessor:
 
         t0 = time.perf_counter()
         self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime())
-                       for r in self.roles if not r.dynamic}
+                       for r in self.roles if not r.per_frame}
         self.clock.add("read", t0)
 
     # ------------------------------------------------------------------ lights
@@ -209,11 +209,11 @@ class ShotProcessor:
         from .gaussians import GaussianSet
         from .lights import estimate_lights
 
-        scene = [g for r in self.roles if r.role == "scene" and not r.dynamic for g in [self.static[r.path]]]
+        scene = [g for r in self.roles if r.role == "scene" and not r.per_frame for g in [self.static[r.path]]]
         if not scene:
             self.warnings.append("no static scene prim: no lights can be estimated")
             return []
-        movers = [r.path for r in self.roles if r.role == "avatar"] or [r.path for r in self.roles if r.dynamic]
+        movers = [r.path for r in self.roles if r.role == "avatar"] or [r.path for r in self.roles if r.per_frame]
         picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
         cents = [alpha_weighted_centroid(self._read(p, f)) for p in movers for f in picks]
         if not cents:
@@ -279,14 +279,14 @@ class ShotProcessor:
         self._dyn_recv_paths = [p for p in receivers if p not in self.static]
         self._static_recv = Receivers.build([(p, self.static[p]) for p in self._static_recv_paths])
         self._spheres = prim_spheres(self._static_recv, self.opts.dgsm.k_sigma)
-        static_casters = [r.path for r in self.roles if not r.dynamic and r.casts_shadows]
+        static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
         casters = Receivers.build([(p, self.static[p]) for p in static_casters])
         self._scene_block = casters.gaussians if static_casters else None
         spheres = prim_spheres(casters, self.opts.dgsm.k_sigma)
         self._caster_ranges = [casters.ranges[p] for p in spheres]
         self._caster_centres = np.array([spheres[p][0] for p in spheres]).reshape(-1, 3)
         self._caster_radii = np.array([spheres[p][1] for p in spheres])
-        self._casters_dyn = [r.path for r in self.roles if r.dynamic and r.casts_shadows and r.role != "scene"]
+        self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
 
     def _frame(self, frame: float, author, probe_dir: Path):
         from .shading import attenuation_factor, combine_lights, light_shares, scale_sh
@@ -304,7 +304,7 @@ class ShotProcessor:
 
         clk = self.clock
         t = time.perf_counter()
-        dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.dynamic}
+        dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
         sets = {**self.static, **dyn}
         t = clk.add("read", t)
         lights = self._lights(frame)
@@ -383,7 +383,7 @@ class ShotProcessor:
         # relighting (probe + transfer) for avatars and objects
         relit = {}
         for r in self.roles:
-            if r.dynamic and r.relight and r.role in ("avatar", "object"):
+            if r.per_frame and r.relight and r.role in ("avatar", "object"):
                 everything, spans = self._shot_buffer(dyn)
                 relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author,
                                               probe_dir)

@@ -49,6 +49,12 @@ class ResolvedRole:
     def is_dynamic_role(self) -> bool:
         return self.role in ("avatar", "object")
 
+    @property
+    def per_frame(self) -> bool:
+        """Processed at every frame (read, cast per frame, relit): time-varying prims and every
+        avatar or object, also one that holds a single pose (an inserted static character)."""
+        return self.dynamic or self.is_dynamic_role
+
 
 def resolve_roles(infos, scene_paths=(), avatar_paths=(), object_paths=()) -> tuple[list[ResolvedRole], list[str]]:
     """Resolve roles for ``infos`` (``usd_io.GaussianPrimInfo``, one per Gaussian prim).
