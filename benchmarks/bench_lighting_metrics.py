@@ -9,7 +9,8 @@ Usage (from the repo root):
 Prints, per avatar, PAA-Y / APF-Y / NCM-ab for the original and relit colours and the
 improvement (orig - relit, positive is better), then the relighting ground truth: PSNR over
 the avatar's Gaussians of the project's relighting against the known-light colours, in
-several scene configurations, with the 4.1 metrics for the relit and the exact colours.
+several scene configurations, the lamp and the environment apart (lamp alone = environment x
+1e-4) at the default and at this size, and the 4.1 metrics for the relit and the exact colours.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+
+import numpy as np
 
 from usd_gs.metrics_lighting import METRICS
 from usd_gs.metrics_lighting_stage import format_report, lighting_consistency_for_stage
@@ -64,6 +67,14 @@ def main() -> None:
         print(f"{name:<34}{r['psnr_relit']:>8.2f}{r['psnr_orig']:>8.2f}{r['psnr_relit_true_normals']:>13.2f}"
               f"{r['flipped_normals']:>10.3f}{dt:>7.1f}")
         details.append((name, r))
+    print("\nlamp and environment apart (open scene; independent errors add in squared error):")
+    for sz_name, sz in (("default size", {}), ("this size", size)):
+        parts = {name: relight_ground_truth(lamp=lamp, props=False, metrics=False, env_scale=scale, **sz)["psnr_relit"]
+                 for name, lamp, scale in (("lamp alone", True, 1e-4), ("environment alone", False, 1.0),
+                                           ("together", True, 1.0))}
+        indep = -10.0 * np.log10(10.0 ** (-parts["lamp alone"] / 10) + 10.0 ** (-parts["environment alone"] / 10))
+        print(f"  {sz_name:<13}" + "".join(f"{k} {v:.2f} dB, " for k, v in parts.items())
+              + f"independent errors would give {indep:.2f} dB")
     print("\n4.1 metrics on the ground-truth scene (relit = the project's relighting; exact = the known colours)")
     for name, r in details:
         print(f"{name} (scene neighbourhood {r['metrics']['n_scene']}, SH rank {r['metrics']['scene_sh_rank']})")
