@@ -268,9 +268,9 @@ def test_fresh_checkout_generates_the_missing_demo_stage(tmp_path, monkeypatch, 
 def test_a_static_avatar_is_relit_and_casts(tmp_path):
     """An avatar without time samples (an inserted character in one pose) is processed like a
     moving one: relit (lightScale and a probe) and its shadow falls on the scene."""
+    from lights_scene import make_emitter_test_scene
     from pxr import Usd
 
-    from lights_scene import make_emitter_test_scene
     from usd_gs.cli import main
     from usd_gs.synthetic import random_gaussians
     from usd_gs.usd_io import new_stage, save_stage_atomic, write_gaussian_prim
