@@ -41,10 +41,10 @@ def prange_only() -> dict:
 def threaded() -> dict:
     """``@njit`` options of a kernel that ``thread_chunks.run_chunks`` runs on index ranges in
     threads: ``nogil`` (the threads run at once) and numba's parallel pipeline with
-    :func:`prange_only` although the kernel has no ``prange``. Measured on the DGSM accumulation
-    (bench scene, 2 cores): the parallel pipeline's passes make the same serial loop 18 %
-    faster (0.237 -> 0.193 s single-threaded) for 0.2 s more compile, while a ``prange`` loop
-    costs ~1.5 s more (its body is typed again as a gufunc). numba warns that nothing could be
+    :func:`prange_only` although the kernel has no ``prange``. Measured with one thread on the
+    DGSM bench (``NUMBA_NUM_THREADS=1 benchmarks/bench_dgsm.py``): build 0.243 s as plain
+    ``nogil`` kernels, 0.209-0.232 s with the parallel pipeline's passes, for ~0.2 s more compile
+    per kernel, while a ``prange`` loop costs ~1.5 s more (its body is typed again as a gufunc). numba warns that nothing could be
     parallelised; that warning is filtered for these kernels (below)."""
     return {"nogil": True, "parallel": prange_only()}
 
