@@ -44,7 +44,8 @@ def threaded() -> dict:
     :func:`prange_only` although the kernel has no ``prange``. Measured with one thread on the
     DGSM bench (``NUMBA_NUM_THREADS=1 benchmarks/bench_dgsm.py``): build 0.243 s as plain
     ``nogil`` kernels, 0.209-0.232 s with the parallel pipeline's passes, for ~0.2 s more compile
-    per kernel, while a ``prange`` loop costs ~1.5 s more (its body is typed again as a gufunc). numba warns that nothing could be
+    per kernel, while a ``prange`` loop costs ~1.5 s more (its body is typed again as a gufunc).
+    numba warns that nothing could be
     parallelised; that warning is filtered for these kernels (below)."""
     return {"nogil": True, "parallel": prange_only()}
 
