@@ -205,3 +205,110 @@ def test_sh_rank_counts_the_coefficients_the_normals_determine():
     assert sh_rank(np.tile([0.0, 1.0, 0.0], (500, 1))) == 1  # a floor
     two = np.repeat([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], 300, axis=0)  # floor and one wall
     assert sh_rank(two) == 2
+
+
+# ----------------------------------------------------------------------------- rank-limited scenes
+def test_paa_compares_only_what_the_scene_normals_determine():
+    from usd_gs.metrics_lighting import sh_basis
+
+    everywhere = radial(sphere(0.5, 4000))
+    # normals over the whole sphere: the paper's plain L1 distance (k ~ 1, P = I)
+    assert paa_y(C_A, C_B, everywhere) == pytest.approx(paa_y(C_A, C_B), rel=0.03)
+    floor = np.tile([0.0, 1.0, 0.0], (400, 1))
+    assert paa_y(C_A, C_B, floor) == pytest.approx(0.0, abs=1e-12)  # a floor shows only the level
+    # floor and one wall (rank 2): the minimum-norm coefficients reproducing the difference of the
+    # two level-normalised lightings at the two normals (pseudo-inverse, not the eigen-projector)
+    two = np.repeat([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], 300, axis=0)
+    b = sh_basis(two)
+    y00 = sh_basis(np.array([[0.0, 0.0, 1.0]]))[0, 0]
+    v = C_A * y00 / (b @ C_A).mean() - C_B * y00 / (b @ C_B).mean()
+    assert paa_y(C_A, C_B, two) == pytest.approx(np.abs(np.linalg.pinv(b, rcond=1e-6) @ (b @ v)).sum(), rel=1e-5)
+    assert paa_y(3.0 * C_A, C_B, two) == pytest.approx(paa_y(C_A, C_B, two), rel=1e-9)  # exposure drops out
+    assert paa_y(C_A, C_B, two) > 0.05
+
+
+def test_visible_from_hides_what_a_ball_covers():
+    """A floor patch under a ball, seen from above: hidden = the segment to the eye crosses the
+    ball (analytic ray-sphere test), for the floor and for the ball's own far side."""
+    from usd_gs.gaussians import GaussianSet
+    from usd_gs.point_visibility import visible_from
+
+    plane = trimesh.Trimesh([[-1.5, 0, -1.5], [1.5, 0, -1.5], [1.5, 0, 1.5], [-1.5, 0, 1.5]], [[0, 2, 1], [0, 3, 2]])
+    face, bary = sample_surface(plane.vertices, plane.faces, 30000, 1)
+    floor = gaussians_on_mesh(plane.vertices, plane.faces, np.tile([0.0, 1.0, 0.0], (4, 1)), face, bary,
+                              (0.5, 0.5, 0.5))
+    centre, r = np.array([0.2, 0.5, 0.0]), 0.3
+    ball = sphere(r, 6000, center=centre, seed=2)
+    g = GaussianSet.concatenate([floor, ball])
+    eye = np.array([0.0, 1.6, 0.3])
+    p = g.positions.astype(np.float64)
+    d = p - eye
+    t = np.linalg.norm(d, axis=1)
+    u = d / t[:, None]
+    oc = eye - centre
+    bq = np.einsum("ij,j->i", u, oc)
+    disc = bq * bq - (oc @ oc - r * r)
+    t_hit = -bq - np.sqrt(np.maximum(disc, 0.0))
+    hidden = (disc > 0) & (t_hit > 0) & (t_hit < t - 0.02)
+    seen = visible_from(g, eye)
+    assert 0.1 < hidden.mean() < 0.5
+    assert np.mean(seen == ~hidden) > 0.96
+    # every disagreement lies along the ball's silhouette (splat tails, texels of 1.4 degrees)
+    to_ball = (centre - eye) / np.linalg.norm(centre - eye)
+    off_rim = np.degrees(np.arccos(np.clip(u @ to_ball, -1, 1))) - np.degrees(np.arcsin(r / np.linalg.norm(oc)))
+    wrong = seen == hidden
+    assert (np.abs(off_rim[wrong]) < 4.0).all() and np.percentile(np.abs(off_rim[wrong]), 95) < 2.5
+
+
+def test_scene_lighting_leaves_out_what_the_avatar_does_not_see():
+    """A wall behind a box, from the avatar's side: the wall's part behind the box and the box's
+    far faces are not in the neighbourhood; without the test they are (visible_only=False)."""
+    box = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
+    box.apply_translation((0.0, 0.3, -0.8))
+    box.unmerge_vertices()
+    face, bary = sample_surface(box.vertices, box.faces, 6000, 4)
+    g_box = gaussians_on_mesh(np.asarray(box.vertices), box.faces, np.asarray(box.vertex_normals), face, bary,
+                              (0.6, 0.6, 0.6))
+    sc_all = scene_lighting(g_box, (0.0, 0.9, 0.0), 1.5, visible_only=False)
+    sc = scene_lighting(g_box, (0.0, 0.9, 0.0), 1.5)
+    assert sc.hidden + sc.index.size == sc_all.index.size
+    box_n = g_box.orientations  # local z = face normal: the box's far (-z) and bottom faces are hidden
+    from usd_gs.gaussians import quaternion_to_matrix
+
+    n = quaternion_to_matrix(box_n)[:, :, 2]
+    kept = np.zeros(g_box.count, bool)
+    kept[sc.index] = True
+    # the bottom face, seen edge-on, keeps a band along the front edge within the depth tolerance
+    # (3 cm + 5 % + 3 sigma); deeper than 15 cm behind the front face it is gone
+    inside = np.zeros(g_box.count, bool)
+    inside[sc_all.index] = True
+    bottom = (n[:, 1] < -0.9) & (g_box.positions[:, 2] < -0.65)
+    assert kept[inside & (n[:, 2] < -0.9)].mean() < 0.02 and kept[inside & bottom].mean() < 0.02
+    assert kept[inside & ((n[:, 2] > 0.9) | (n[:, 1] > 0.9))].mean() > 0.97
+
+
+def test_undetermined_paa_is_nan_and_left_out_of_the_means():
+    from usd_gs.metrics_lighting import PAA_MIN_RANK, summarize
+    from usd_gs.metrics_lighting_stage import format_report
+
+    avatar = sphere(0.4, 2000)
+    plane = trimesh.Trimesh([[-1.5, 0, -1.5], [1.5, 0, -1.5], [1.5, 0, 1.5], [-1.5, 0, 1.5]], [[0, 2, 1], [0, 3, 2]])
+    face, bary = sample_surface(plane.vertices, plane.faces, 8000, 1)
+    floor = gaussians_on_mesh(plane.vertices, plane.faces, np.tile([0.0, 1.0, 0.0], (4, 1)), face, bary,
+                              (0.5, 0.5, 0.5))
+    lifted = avatar.transformed(np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0.5, 0, 1.0]]))
+    orig = shaded(lifted, radial(lifted, (0, 0.5, 0)), C_B, albedo=0.4)
+    relit = shaded(lifted, radial(lifted, (0, 0.5, 0)), C_A, albedo=0.4)
+    on_floor = lighting_consistency(orig, relit, floor, radius_m=1.5)
+    assert on_floor["scene_sh_rank"] < PAA_MIN_RANK
+    assert np.isnan(on_floor["orig"]["paa_y"]) and np.isnan(on_floor["improvement"]["paa_y"])
+    assert np.isfinite(on_floor["relit"]["apf_y"]) and np.isfinite(on_floor["relit"]["ncm_ab"])
+    in_shell = lighting_consistency(shaded(avatar, radial(avatar), C_B, albedo=0.4),
+                                    shaded(avatar, radial(avatar), C_A, albedo=0.4), scene_shell(C_A), radius_m=1.5)
+    s = summarize([on_floor, in_shell])
+    assert s["count"] == 2 and s["determined"] == {"paa_y": 1, "apf_y": 2, "ncm_ab": 2}
+    assert s["relit"]["paa_y"] == pytest.approx(in_shell["relit"]["paa_y"])
+    only_floor = summarize([on_floor])
+    assert np.isnan(only_floor["relit"]["paa_y"])
+    text = format_report({"mean": {"/A": only_floor}, "overall": only_floor})
+    assert "n/a" in text and "PAA-Y undetermined in 1 of 1 frames" in text

@@ -74,12 +74,25 @@ def run_eval(stage_path: str, camera=None, frames=None, width: int = 960, radius
             "tau": 0.1, "boundary_tol_px": 2, "frames": rows, "mean": mean_metrics(rows)}
 
 
+def _nan_to_none(o):
+    """Undetermined metrics (NaN) as JSON ``null``; containers walked recursively."""
+    import math
+
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _nan_to_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_nan_to_none(v) for v in o]
+    return o
+
+
 def cmd_eval(args) -> int:
     out = run_eval(args.stage, args.camera, args.frames, args.width, args.radius, args.config, args.matte, args.avatar)
     light = lighting_metrics(args.stage, [r["frame"] for r in out["frames"]], args.lighting_radius)
     out["lighting"] = light
     if args.json:
-        json.dump(out, sys.stdout, indent=2, default=_jsonable)
+        json.dump(_nan_to_none(json.loads(json.dumps(out, default=_jsonable))), sys.stdout, indent=2)
         print()
         return 0
     print(f"{out['stage']}: shadow of {out['avatar']} against the mesh {out['guide_mesh']}, camera {out['camera']} "

@@ -106,14 +106,25 @@ def lighting_consistency_for_stage(output_stage_path, frames=None, radius: float
 
 def format_report(result: dict) -> str:
     """Printable table of :func:`lighting_consistency_for_stage` (means per avatar and overall)."""
-    from .metrics_lighting import METRICS
+    import math
+
+    from .metrics_lighting import METRICS, PAA_MIN_RANK
+
+    def cell(v: float) -> str:
+        return f"{'n/a':>16}" if not math.isfinite(v) else f"{v:>16.4f}"
 
     head = f"{'avatar':<28}" + "".join(f"{m + ' ' + k:>16}" for m in METRICS for k in ("orig", "relit", "impr."))
     lines = [head]
     rows = list(result["mean"].items()) + [("all", result["overall"])]
     for name, s in rows:
-        vals = "".join(f"{s['orig'][m]:>16.4f}{s['relit'][m]:>16.4f}{s['improvement'][m]:>16.4f}" for m in METRICS)
+        vals = "".join(cell(s["orig"][m]) + cell(s["relit"][m]) + cell(s["improvement"][m]) for m in METRICS)
         lines.append(f"{name:<28}" + vals)
+    for name, s in result["mean"].items():
+        n = s["determined"]["paa_y"]
+        if n < s["count"]:
+            lines.append(f"{name}: PAA-Y undetermined in {s['count'] - n} of {s['count']} frames (the scene "
+                         f"neighbourhood's normals determine fewer than {PAA_MIN_RANK} SH coefficients; "
+                         "mean over the others)")
     return "\n".join(lines)
 
 
