@@ -80,8 +80,10 @@ def test_props_scene_paa_improves_for_relit_and_exact_colours():
     """With the two spheres the neighbourhood's normals determine the lighting (SH rank >= 12);
     the spheres' undersides are hidden from the avatar and left out (with them, their flipped
     pseudo-normals made the exact colours score no better than the unlit avatar). Measured at
-    this size: PAA-Y 1.92 unlit, 1.34 relit, 1.33 exact."""
+    this size: PAA-Y 1.92 unlit, 1.34 relit, 1.33 exact. The relit PSNR needs the parallax probes'
+    occlusion test (a leg saw both a sphere and the sky behind it): measured 28.7 dB."""
     r = relight_ground_truth(n_avatar=1500, n_surface=6000, lamp=True, props=True, metrics=True)
+    assert r["psnr_relit"] > 27.5
     for key in ("metrics", "metrics_gt"):
         m = r[key]
         assert m["scene_sh_rank"] >= 12 and m["n_hidden"] > 0
