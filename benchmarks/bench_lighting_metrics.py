@@ -5,6 +5,7 @@ Usage (from the repo root):
     PYTHONPATH=. .venv/bin/usdgs demo make --quick
     PYTHONPATH=. .venv/bin/usdgs process stages/demo.usda --frames 1-4
     PYTHONPATH=. .venv/bin/python benchmarks/bench_lighting_metrics.py [--stage stages/demo.lit.usdc] [--small]
+        [--frames 1,13,25,37|all]
 
 Prints, per avatar, PAA-Y / APF-Y / NCM-ab for the original and relit colours and the
 improvement (orig - relit, positive is better), then the relighting ground truth: PSNR over
@@ -35,11 +36,15 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--stage", default="stages/demo.lit.usdc")
     ap.add_argument("--small", action="store_true", help="ground truth at test size (faster)")
+    ap.add_argument("--frames", default="1,13,25,37",
+                    help="comma-separated frames of the stage to evaluate ('all': every relit frame; each "
+                         "takes seconds)")
     a = ap.parse_args()
 
     if Path(a.stage).exists():
         t = time.perf_counter()
-        r = lighting_consistency_for_stage(a.stage)
+        frames = None if a.frames == "all" else [float(f) for f in a.frames.split(",")]
+        r = lighting_consistency_for_stage(a.stage, frames=frames)
         dt = time.perf_counter() - t
         print(f"== {a.stage}: frames {r['frames']}, {dt:.1f} s ({dt / max(1, len(r['frames'])):.1f} s/frame, "
               f"all avatars)")
@@ -75,6 +80,12 @@ def main() -> None:
         indep = -10.0 * np.log10(10.0 ** (-parts["lamp alone"] / 10) + 10.0 ** (-parts["environment alone"] / 10))
         print(f"  {sz_name:<13}" + "".join(f"{k} {v:.2f} dB, " for k, v in parts.items())
               + f"independent errors would give {indep:.2f} dB")
+    print("\nwith --probe-supersample 2 (probe render drawn at 2x and filtered down):")
+    for sz_name, sz in (("default size", {}), ("this size", size)):
+        vals = [relight_ground_truth(lamp=lamp, props=props, metrics=False, probe_supersample=2, **sz)["psnr_relit"]
+                for props, lamp in ((True, True), (False, True), (True, False), (False, False))]
+        print(f"  {sz_name:<13} props+lamp {vals[0]:.2f}, lamp {vals[1]:.2f}, props {vals[2]:.2f}, "
+              f"neither {vals[3]:.2f} dB")
     print("\n4.1 metrics on the ground-truth scene (relit = the project's relighting; exact = the known colours)")
     for name, r in details:
         print(f"{name} (scene neighbourhood {r['metrics']['n_scene']}, SH rank {r['metrics']['scene_sh_rank']})")

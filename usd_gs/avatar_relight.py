@@ -29,11 +29,12 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     outward ``normals`` (N, 3), seen from ``everything`` where ``mask`` (bool, len
     ``everything.count``) is True; ``centre`` (3,) metres; ``blend`` the prim's
     ``probe_parallax.ProbeBlend`` for the shot (None: one probe); ``opts`` a
-    ``ProcessOptions`` (probe_size, probe_degree, transfer_degree, relight_q, relight_t_max)."""
+    ``ProcessOptions`` (probe_size, probe_supersample, probe_degree, transfer_degree, relight_q,
+    relight_t_max)."""
     from .probe_parallax import cube_texels, reprojected_probes
     from .relight import relight_scale
 
-    rgb, alpha, depth = render_probe_faces(everything, centre, opts.probe_size, mask, dilation)
+    rgb, alpha, depth = render_probe_faces(everything, centre, opts.probe_size, mask, dilation, opts.probe_supersample)
     probe = fit_probe(rgb, degree=opts.probe_degree, alpha=alpha, center=centre)
     q, t_max = opts.relight_q, opts.relight_t_max
     if blend is None or blend.k == 1:

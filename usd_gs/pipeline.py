@@ -56,6 +56,7 @@ class ProcessOptions:
     probe_degree: int = 3
     transfer_degree: int = 4
     probe_points: int = 8
+    probe_supersample: int = 1
     probe_texture: tuple[int, int] = (32, 64)
     relight_q: float = 1.0
     relight_gamma: float = 1.0
@@ -72,6 +73,8 @@ class ProcessOptions:
             raise UserError(f"transfer degree must be 0..8, got {self.transfer_degree}")
         if not 1 <= self.probe_points <= 64:
             raise UserError(f"probe points must be 1..64, got {self.probe_points}")
+        if not 1 <= self.probe_supersample <= 4:
+            raise UserError(f"probe supersampling must be 1..4, got {self.probe_supersample}")
         if self.lights not in ("auto", "stage"):
             try:
                 k = int(self.lights)

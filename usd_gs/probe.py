@@ -35,10 +35,11 @@ _MAX_DEGREE = 8
 
 
 PROBE_DILATION = 0.0  # px^2: probe renders measure radiance (see render_probe_faces)
-PROBE_SUPERSAMPLE = 2
-"""Probe renders are drawn at this many times the face size per axis and box-filtered down
-(:func:`render_probe_faces`): a lamp a few texels wide is then integrated over each texel
-instead of sampled at its centre."""
+PROBE_SUPERSAMPLE = 1
+"""Default of :func:`render_probe_faces`' ``supersample`` (and of ``ProcessOptions.probe_supersample``,
+``usdgs process --probe-supersample``): 2 draws the faces at twice the size per axis and
+box-filters them down, so that a lamp a few texels wide is integrated over each texel instead of
+sampled at its centre; measured benefit and cost in :func:`render_probe_faces`."""
 
 
 def _signs_rh_3dgs(k: int) -> np.ndarray:
@@ -187,7 +188,9 @@ def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | Non
     (``usd_gs.relight_groundtruth``): the ground truth's 0.3 m lamp 4.3 m away, drawn alone at
     32^2, comes out 7.8 % too bright (its texel-centre samples; 1.3 % at 64^2), which cost 1-2 dB
     (relit PSNR at the bench size, props + lamp / lamp / props / neither: 29.5 / 29.1 / 31.7 /
-    31.5 dB; supersampled 2x: 31.5 / 31.0 / 31.9 / 31.6, 15 ms more per render of the demo). Earlier,
+    31.5 dB; supersampled 2x: 31.5 / 31.0 / 31.9 / 31.6; at the default size 31.8 / 31.9 / 30.6 /
+    30.8 against 31.6 / 31.9 / 30.7 / 30.9: no gain); 10 ms more per render of the demo (45-49 ->
+    55-57 ms), which is why it is off by default (the main job's cold-cache target). Earlier,
     with one probe and mesh normals: 26.1 dB at 32^2 and 64^2 faces without dilation; the 3DGS
     0.3 px^2 dilation gave 11.5 dB plain (the small lamp ~3x too bright) and 19.3 / 22.2 dB
     compensated (the 1/255 alpha floor then drops the blurred lamp's tails)."""
