@@ -143,8 +143,8 @@ def test_a_panel_moved_in_front_of_the_sky_hides_it():
     occlusion test the reprojected probes are within 8 % (measured 0.98 at the centre: the
     texels and SH degree 4 of the slab's sharp edge; 0.97 and 1.06 at the two nearer points);
     without it the sky texels beside the slab at the centre also count behind it from the nearer
-    point (measured +67 %). (A slab, not a single sheet of splats: through one sheet of opacity 0.99 the far sky leaks into the
-    expected depth, 1 % of 500 m.)"""
+    point (measured +67 %). (A slab, not a single sheet of splats: through one sheet of opacity
+    0.99 the far sky leaks into the expected depth, 1 % of 500 m.)"""
     from usd_gs.gaussians import GaussianSet
     from usd_gs.probe import hdr_dome_gaussians
 
