@@ -47,7 +47,8 @@ OCCLUSION_SIZE = 32
 size by default). Measured on the known-light ground truth (``usd_gs.relight_groundtruth``,
 default size; PSNR over the avatar, props + lamp / lamp / props / neither): none 26.8 / 30.6 /
 27.5 / 30.9 dB; 16: 31.9 / 32.0 / 30.5 / 30.8; 32: 31.8 / 31.9 / 30.6 / 30.8; 64: 31.8 / 31.9 /
-30.6 / 30.8; 2.5 ms per probe point."""
+30.6 / 30.8; 2-2.5 ms per probe point (8 per prim: `reprojected_probes` 6-8 -> 20-23 ms on
+the demo)."""
 _DISC = 0.75
 """Disc radius per texel: ``_DISC sqrt(solid angle)`` (the equal-area disc, 0.56, leaves the
 corners of a square texel lattice open: 30 % of the sky behind a panel stayed visible)."""
