@@ -44,7 +44,7 @@ def _splat(dirs, dist, radius, frames, size, max_reach, out):
             jc = int(math.floor((u + 1.0) * 0.5 * size))
             ic = int(math.floor((v + 1.0) * 0.5 * size))
             # face-coordinate extent of the disc: at most tan(rho) (1 + u^2 + v^2); a texel spans 2 / size
-            reach = int(math.ceil(math.tan(min(rho, 1.2)) * (1.0 + u * u + v * v) * 0.5 * size)) + 1
+            reach = int(math.ceil(math.tan(min(rho, 1.2)) * (1.0 + u * u + v * v) * 0.5 * size))
             if reach > max_reach:
                 reach = max_reach
             for i in range(max(ic - reach, 0), min(ic + reach + 1, size)):
@@ -57,6 +57,40 @@ def _splat(dirs, dist, radius, frames, size, max_reach, out):
                     c = (dx * x + dy * y + dz * z) / math.sqrt(dx * dx + dy * dy + dz * dz)
                     if c >= cos_rho and dist[t] < out[f, i, j]:
                         out[f, i, j] = dist[t]
+
+
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
+def _own_texel_depth(dirs, zbuf, frames, size, out):
+    for t in range(dirs.shape[0]):
+        x, y, z = dirs[t, 0], dirs[t, 1], dirs[t, 2]
+        ax, ay, az = abs(x), abs(y), abs(z)
+        if ax >= ay and ax >= az:
+            f = 0 if x > 0 else 1
+        elif ay >= az:
+            f = 2 if y > 0 else 3
+        else:
+            f = 4 if z > 0 else 5
+        fw = x * frames[f, 0, 0] + y * frames[f, 0, 1] + z * frames[f, 0, 2]
+        if not fw > 0.0:
+            out[t] = np.inf
+            continue
+        u = (x * frames[f, 1, 0] + y * frames[f, 1, 1] + z * frames[f, 1, 2]) / fw
+        v = (x * frames[f, 2, 0] + y * frames[f, 2, 1] + z * frames[f, 2, 2]) / fw
+        j = min(max(int(math.floor((u + 1.0) * 0.5 * size)), 0), size - 1)
+        i = min(max(int(math.floor((v + 1.0) * 0.5 * size)), 0), size - 1)
+        out[t] = zbuf[f, i, j]
+
+
+def nearest_over_own_direction(dirs: np.ndarray, dist: np.ndarray, radius: np.ndarray, size: int,
+                               max_reach: int = 8) -> np.ndarray:
+    """(T,) float64: for each disc, the z-buffer of all of them (:func:`splat_min_depth`) read at
+    the texel of its own centre direction (faces chosen by the major axis, ties toward X then Y,
+    as ``cubemap_dirs.direction_to_face_uv``)."""
+    zbuf = splat_min_depth(dirs, dist, radius, size, max_reach)
+    d = np.ascontiguousarray(dirs, np.float64).reshape(-1, 3)
+    out = np.empty(d.shape[0])
+    _own_texel_depth(d, zbuf, FACE_FRAMES, int(size), out)
+    return out
 
 
 def splat_min_depth(dirs: np.ndarray, dist: np.ndarray, radius: np.ndarray, size: int,

@@ -211,3 +211,19 @@ def test_supersampled_probe_render_integrates_a_small_lamp():
         e = np.linalg.norm(((rgb[..., 0] * cube_face_solid_angles(32))[..., None] * d).sum(axis=(0, 1, 2)))
         err[k] = abs(e / exact - 1.0)
     assert err[2] < 0.03 and err[1] > 2 * err[2]
+
+
+def test_nearest_over_own_direction_reads_the_zbuffer_at_each_disc():
+    from numba_kernels.cubemap_dirs import direction_to_face_uv
+    from numba_kernels.direction_zbuffer import nearest_over_own_direction, splat_min_depth_reference
+
+    rng = np.random.default_rng(5)
+    d = rng.standard_normal((300, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dist = rng.uniform(0.5, 20.0, 300)
+    rad = rng.uniform(0.0, 0.2, 300)
+    ref = splat_min_depth_reference(d, dist, rad, 16)
+    face, u, v = direction_to_face_uv(d)
+    j = np.clip(((u + 1.0) * 8).astype(np.int64), 0, 15)
+    i = np.clip(((v + 1.0) * 8).astype(np.int64), 0, 15)
+    assert np.array_equal(nearest_over_own_direction(d, dist, rad, 16, max_reach=16), ref[face, i, j])

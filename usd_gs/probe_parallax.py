@@ -47,8 +47,8 @@ OCCLUSION_SIZE = 32
 size by default). Measured on the known-light ground truth (``usd_gs.relight_groundtruth``,
 default size; PSNR over the avatar, props + lamp / lamp / props / neither): none 26.8 / 30.6 /
 27.5 / 30.9 dB; 16: 31.9 / 32.0 / 30.5 / 30.8; 32: 31.8 / 31.9 / 30.6 / 30.8; 64: 31.8 / 31.9 /
-30.6 / 30.8; 2-2.5 ms per probe point (8 per prim: `reprojected_probes` 6-8 -> 20-23 ms on
-the demo)."""
+30.6 / 30.8; about 1 ms per probe point (8 per prim: `reprojected_probes` 6-8 -> 15 ms on the
+demo)."""
 _DISC = 0.75
 """Disc radius per texel: ``_DISC sqrt(solid angle)`` (the equal-area disc, 0.56, leaves the
 corners of a square texel lattice open: 30 % of the sky behind a panel stayed visible)."""
@@ -170,15 +170,10 @@ def _front_to_back(dirs: np.ndarray, dist: np.ndarray, weight: np.ndarray, size:
     changes. Without the test a leg sees both a prop and the sky behind it
     (the prop's patches moved in front of sky texels that the centre saw beside the prop): too
     bright by the prop's solid angle. Returns the kept weights (T,)."""
-    from numba_kernels.cubemap_dirs import direction_to_face_uv
-    from numba_kernels.direction_zbuffer import splat_min_depth
+    from numba_kernels.direction_zbuffer import nearest_over_own_direction
 
     rad = np.where(cos_x > _MIN_SPLAT_COS, np.minimum(_DISC * np.sqrt(np.maximum(weight, 0.0)), 0.5), 0.0)
-    zbuf = splat_min_depth(dirs, dist, rad, size)
-    face, u, v = direction_to_face_uv(dirs)
-    j = np.clip(((u + 1.0) * size / 2.0).astype(np.int64), 0, size - 1)
-    i = np.clip(((v + 1.0) * size / 2.0).astype(np.int64), 0, size - 1)
-    hidden = zbuf[face, i, j] * (1.0 + _SAME_LAYER) < dist
+    hidden = nearest_over_own_direction(dirs, dist, rad, size) * (1.0 + _SAME_LAYER) < dist
     return np.where(hidden, 0.0, weight)
 
 def probe_clusters(positions: np.ndarray, k: int, iterations: int = 12, sample: int = 4096,
