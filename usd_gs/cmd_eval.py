@@ -75,9 +75,14 @@ def run_eval(stage_path: str, camera=None, frames=None, width: int = 960, radius
 
 
 def _nan_to_none(o):
-    """Undetermined metrics (NaN) as JSON ``null``; containers walked recursively."""
+    """Undetermined metrics (NaN) as JSON ``null``; containers (and numpy arrays, as lists)
+    walked recursively."""
     import math
 
+    import numpy as np
+
+    if isinstance(o, (np.ndarray, np.generic)):
+        o = o.tolist()
     if isinstance(o, float) and not math.isfinite(o):
         return None
     if isinstance(o, dict):
@@ -92,7 +97,7 @@ def cmd_eval(args) -> int:
     light = lighting_metrics(args.stage, [r["frame"] for r in out["frames"]], args.lighting_radius)
     out["lighting"] = light
     if args.json:
-        json.dump(_nan_to_none(json.loads(json.dumps(out, default=_jsonable))), sys.stdout, indent=2)
+        json.dump(_nan_to_none(out), sys.stdout, indent=2, default=_jsonable)
         print()
         return 0
     print(f"{out['stage']}: shadow of {out['avatar']} against the mesh {out['guide_mesh']}, camera {out['camera']} "

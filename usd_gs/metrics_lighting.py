@@ -309,13 +309,16 @@ def paa_y(c_avatar, c_scene, scene_normals=None) -> float:
     cs = np.asarray(c_scene, np.float64)
     if scene_normals is None:
         return float(np.abs(ca - cs).sum())
-    basis = sh_basis(scene_normals)
-    mean = basis.mean(axis=0)
+    return _paa_restricted(ca, cs, identified_subspace(scene_normals), sh_basis(scene_normals).mean(axis=0))
+
+
+def _paa_restricted(ca: np.ndarray, cs: np.ndarray, identified: np.ndarray, mean_basis: np.ndarray) -> float:
+    """:func:`paa_y` with the scene normals' projector (16, 16) and mean SH basis (16,) given."""
     y00 = float(sh_basis(np.array([[0.0, 0.0, 1.0]]))[0, 0])
-    ka, ks = (float(mean @ c) for c in (ca, cs))
+    ka, ks = float(mean_basis @ ca), float(mean_basis @ cs)
     if not (ka > 0 and ks > 0):
         raise UserError(f"PAA-Y: a mean irradiance over the scene's normals is not positive ({ka:.3g}, {ks:.3g})")
-    return float(np.abs(identified_subspace(scene_normals) @ (ca * (y00 / ka) - cs * (y00 / ks))).sum())
+    return float(np.abs(identified @ (ca * (y00 / ka) - cs * (y00 / ks))).sum())
 
 
 def apf_y(y_avatar, normals_avatar, c_scene, trim: float = TRIM) -> tuple[float, float, float]:
@@ -364,6 +367,7 @@ class SceneLighting:
     normals: np.ndarray  # (M, 3)
     fit: FactorizationFit
     identified: np.ndarray  # (16, 16) :func:`identified_subspace` of the neighbourhood's normals
+    mean_basis: np.ndarray  # (16,) their mean SH basis (PAA-Y's level normalisation)
     hidden: int  # Gaussians within the radius but hidden from the centre (left out of N)
 
     @property
@@ -401,7 +405,8 @@ def scene_lighting(scene: GaussianSet, centre, radius_m: float = 1.5, meters_per
     index, normals = index[seen], normals[seen]
     rgb = gaussian_colors(scene.subset(index), view_from)
     fit = fit_factorization(luminance(rgb), normals, alpha_prior, label=f"{scene.label} neighbourhood")
-    return SceneLighting(centre, index, rgb, normals, fit, identified_subspace(normals), int((~seen).sum()))
+    return SceneLighting(centre, index, rgb, normals, fit, identified_subspace(normals),
+                         sh_basis(normals).mean(axis=0), int((~seen).sum()))
 
 
 def avatar_metrics(rgb_avatar, normals_avatar, scene: SceneLighting, alpha_prior: float = 1.0,
@@ -414,7 +419,8 @@ def avatar_metrics(rgb_avatar, normals_avatar, scene: SceneLighting, alpha_prior
     y = luminance(rgb_avatar)
     fit = fit_factorization(y, normals_avatar, alpha_prior, label=label)
     apf, s, b = apf_y(y, normals_avatar, scene.fit.coeffs)
-    paa = paa_y(fit.coeffs, scene.fit.coeffs, scene.normals) if scene.sh_rank >= PAA_MIN_RANK else float("nan")
+    paa = (_paa_restricted(fit.coeffs, scene.fit.coeffs, scene.identified, scene.mean_basis)
+           if scene.sh_rank >= PAA_MIN_RANK else float("nan"))
     return {"paa_y": paa, "apf_y": apf,
             "ncm_ab": ncm_ab(rgb_avatar, scene.rgb, max_points, seed), "c_avatar": fit.coeffs,
             "apf_scale": s, "apf_offset": b}

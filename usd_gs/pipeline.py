@@ -33,6 +33,7 @@ import numpy as np
 from .errors import UserError
 from .light_prims import ShotLight, read_stage_lights, write_estimated_lights
 from .lights import alpha_weighted_centroid
+from .probe import PROBE_SUPERSAMPLE
 from .shadows import DGSMConfig
 
 
@@ -56,7 +57,7 @@ class ProcessOptions:
     probe_degree: int = 3
     transfer_degree: int = 4
     probe_points: int = 8
-    probe_supersample: int = 1
+    probe_supersample: int = PROBE_SUPERSAMPLE  # usd_gs.probe: 1, drawn at the probe size
     probe_texture: tuple[int, int] = (32, 64)
     relight_q: float = 1.0
     relight_gamma: float = 1.0

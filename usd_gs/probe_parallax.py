@@ -22,7 +22,7 @@ the SH projection ``a_lm = sum_t L_t Y_lm(d'_t) w'_t`` (real SH, the RH basis of
 ``numba_kernels.sh_real``), which is exactly the quadrature that the irradiance
 ``sum_t L_t max(0, n.d'_t) w'_t`` needs. Occlusion between texels as seen from ``x`` (a prop
 moved in front of sky the centre saw beside it) is tested with a z-buffer of the reprojected
-texels (:func:`_front_to_back`). What this does not model: surfaces hidden from ``c`` but
+texels (:func:`_occlusion_weights`). What this does not model: surfaces hidden from ``c`` but
 visible from ``x`` (they are missing).
 
 The probe points are the centres of ``k`` clusters of the avatar's Gaussians (k-means on the
@@ -43,8 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 
 OCCLUSION_SIZE = 32
-"""Face size of the occlusion test's z-buffer (:func:`_front_to_back`; the probe render's own
-size by default). Measured on the known-light ground truth (``usd_gs.relight_groundtruth``,
+"""Face size of the occlusion test's z-buffer (:func:`_occlusion_weights`; the default probe
+render's size, ``ProcessOptions.probe_size``). Measured on the known-light ground truth (``usd_gs.relight_groundtruth``,
 default size; PSNR over the avatar, props + lamp / lamp / props / neither): none 26.8 / 30.6 /
 27.5 / 30.9 dB; 16: 31.9 / 32.0 / 30.5 / 30.8; 32: 31.8 / 31.9 / 30.6 / 30.8; 64: 31.8 / 31.9 /
 30.6 / 30.8; about 1 ms per probe point (8 per prim: `reprojected_probes` 6-8 -> 15 ms on the
@@ -135,7 +135,7 @@ def reprojected_probes(tex: CubeTexels, points, degree: int,
                        occlusion_size: int | None = OCCLUSION_SIZE) -> np.ndarray:
     """(K, (degree+1)^2, 3) float64 RH SH radiance probes at ``points`` (K, 3) (module doc).
     A point at the centre gives the plain projection of the render. ``occlusion_size``: face
-    size of the z-buffer of the occlusion test at each point (:func:`_front_to_back`;
+    size of the z-buffer of the occlusion test at each point (:func:`_occlusion_weights`;
     None: none, every texel counts)."""
     from numba_kernels.sh_real import eval_basis_rh_numpy
 
@@ -153,12 +153,12 @@ def reprojected_probes(tex: CubeTexels, points, degree: int,
         ratio = np.minimum((np.maximum(cos_x, 0.0) + _MIN_COS) / (cos_c + _MIN_COS), _MAX_RATIO)
         wx = w * np.where(ok, (r / np.where(ok, dist, 1.0)) ** 2 * ratio, 0.0)
         if occlusion_size is not None:
-            wx = _front_to_back(dn, dist, wx, int(occlusion_size), cos_x)
+            wx = _occlusion_weights(dn, dist, wx, int(occlusion_size), cos_x)
         out[k] = eval_basis_rh_numpy(dn, degree).T @ (lum * wx[:, None])
     return out
 
 
-def _front_to_back(dirs: np.ndarray, dist: np.ndarray, weight: np.ndarray, size: int,
+def _occlusion_weights(dirs: np.ndarray, dist: np.ndarray, weight: np.ndarray, size: int,
                    cos_x: np.ndarray) -> np.ndarray:
     """Occlusion between reprojected texels as seen from the new point: each texel is a disc of
     directions around ``dirs`` with its solid angle ``weight`` (angular radius
