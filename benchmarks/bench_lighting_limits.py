@@ -13,8 +13,9 @@ Usage (from the repo root; ../shared/data present; the demo stage is generated i
 3. APF-Y of the exact known-light colours (props scene): with ``c_scene``, with the avatar's own
    exact order-3 irradiance, and for an avatar "as captured" under a studio key light;
 4. demo: PAA-Y of CesiumMan with the room's own shading model applied to it (the exact lighting)
-   at frames 1, 13, 25, 37 (SH rank of the neighbourhood printed), and ``reprojected_probes``
-   milliseconds per relit prim at frame 1 with and without the occlusion test.
+   at frames 1, 13, 25, 37 (SH rank of the neighbourhood printed), and milliseconds per relit
+   prim at frame 1 of ``reprojected_probes`` with and without the occlusion test and of the
+   probe render supersampled 1x and 2x.
 """
 
 from __future__ import annotations
@@ -153,7 +154,8 @@ def demo_limits() -> None:
                 for h in (g, lit)]
         note = "" if sc.sh_rank >= PAA_MIN_RANK else f" (below rank {PAA_MIN_RANK}: reported n/a)"
         print(f"   frame {f}: SH rank {sc.sh_rank}, unlit {vals[0]:.3f}, room-lit {vals[1]:.3f}{note}")
-    print("   reprojected_probes, 8 points, frame 1 (ms): without / with the occlusion test")
+    print("   frame 1, ms per relit prim: reprojected_probes (8 points) without / with the occlusion test; "
+          "probe render supersampled 1x / 2x")
     gs = {k: read_gaussian_prim(p, Usd.TimeCode(1)) for k, p in prims.items()}
     everything = GaussianSet.concatenate(list(gs.values()))
     start = 0
@@ -167,6 +169,13 @@ def demo_limits() -> None:
         c = alpha_weighted_centroid(g)
         pts = ProbeBlend.build(g.positions, 8).centres(g.positions)
         tex = cube_texels(*render_probe_faces(everything, c, 32, mask), c)
+        render_ms = []
+        for k_ss in (1, 2):
+            render_probe_faces(everything, c, 32, mask, supersample=k_ss)
+            t0 = time.perf_counter()
+            for _ in range(3):
+                render_probe_faces(everything, c, 32, mask, supersample=k_ss)
+            render_ms.append((time.perf_counter() - t0) / 3 * 1e3)
         ms = []
         for occ in (None, 32):
             reprojected_probes(tex, pts, 4, occlusion_size=occ)
@@ -174,7 +183,7 @@ def demo_limits() -> None:
             for _ in range(5):
                 reprojected_probes(tex, pts, 4, occlusion_size=occ)
             ms.append((time.perf_counter() - t0) / 5 * 1e3)
-        print(f"   {k:<18} {ms[0]:.1f} / {ms[1]:.1f}")
+        print(f"   {k:<18} {ms[0]:.1f} / {ms[1]:.1f}; {render_ms[0]:.1f} / {render_ms[1]:.1f}")
 
 
 def main() -> None:

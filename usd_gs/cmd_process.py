@@ -156,7 +156,7 @@ def register_process(sub, formatter):
     p.add_argument("--probe-supersample", type=int, metavar="S",
                    help="relighting: draw the probe cube render at S x its size and filter it down (default 1; 2 "
                         "integrates small lamps over each texel: +1-2 dB on the known-light ground truth at the "
-                        "bench size, about 10 ms more per relit prim and frame)")
+                        "bench size, about 10-15 ms more per relit prim and frame)")
     p.add_argument("--transfer-degree", type=int, metavar="D",
                    help="relighting: SH degree of the lighting transfer (default 4; the written probe stays degree 3)")
     p.add_argument("--atlas-size", type=int, help="DGSM octahedral atlas side in pixels (default 512)")

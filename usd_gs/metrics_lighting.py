@@ -83,9 +83,9 @@ neighbourhood's luminance says nothing about where the light comes from that the
 albedo does not explain as well (a floor alone: only its level; a floor and one wall: one ratio,
 the two albedos' as much as the light's). Measured on the demo: CesiumMan's neighbourhood is a
 floor (rank 1) or floor and wall (rank 2), and the room's *own* shading model applied to
-CesiumMan (the exact lighting, ``usd_gs.room_scene``) scores PAA-Y 0.364 -> 0.498 at rank 2,
-worse than the unlit avatar. Such frames report PAA-Y as NaN (undetermined) and are left out of
-the means."""
+CesiumMan (the exact lighting, ``usd_gs.room_scene``) scores PAA-Y 0.364 -> 0.497 at rank 2
+(``benchmarks/bench_lighting_limits.py``), worse than the unlit avatar. Such frames report
+PAA-Y as NaN (undetermined) and are left out of the means."""
 RIDGE = 1e-2
 """Ridge on ``c_lm, l >= 1`` relative to the data (a coefficient of 1 costs ``RIDGE`` x the summed
 squared luminance): with 1e-3 a floor-only neighbourhood overfits the few-degree noise of its

@@ -186,11 +186,12 @@ def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | Non
     faces are drawn at ``supersample`` x ``size`` and box-filtered down: premultiplied rgb and
     alpha averaged, depth alpha-weighted. Measured on the known-light ground truth
     (``usd_gs.relight_groundtruth``): the ground truth's 0.3 m lamp 4.3 m away, drawn alone at
-    32^2, comes out 7.8 % too bright (its texel-centre samples; 1.3 % at 64^2), which cost 1-2 dB
+    32^2, comes out 7.8 % too bright (its texel-centre samples; 1.5 % drawn at 2x), which cost 1-2 dB
     (relit PSNR at the bench size, props + lamp / lamp / props / neither: 29.5 / 29.1 / 31.7 /
     31.5 dB; supersampled 2x: 31.5 / 31.0 / 31.9 / 31.6; at the default size 31.8 / 31.9 / 30.6 /
-    30.8 against 31.6 / 31.9 / 30.7 / 30.9: no gain); 10 ms more per render of the demo (45-49 ->
-    55-57 ms), which is why it is off by default (the main job's cold-cache target). Earlier,
+    30.8 against 31.6 / 31.9 / 30.7 / 30.9: no gain); 11-15 ms more per render of the demo (35-55 ->
+    46-70 ms; ``benchmarks/bench_lighting_limits.py`` prints the lamp and these timings), which is why it is off by
+    default (the main job's cold-cache target). Earlier,
     with one probe and mesh normals: 26.1 dB at 32^2 and 64^2 faces without dilation; the 3DGS
     0.3 px^2 dilation gave 11.5 dB plain (the small lamp ~3x too bright) and 19.3 / 22.2 dB
     compensated (the 1/255 alpha floor then drops the blurred lamp's tails)."""
