@@ -6,7 +6,7 @@ Two measurements, each in a fresh numba cache (a new temporary ``NUMBA_CACHE_DIR
   first run does, and prints every top-level numba compilation of the main process (start s,
   duration s, kernel), how long the main process waited for the warm-up's marker and when the
   marker appeared, then the wall time;
-- ``groups``: compiles each ``usd_gs.jit_warmup`` group on its own in a fresh process with one
+- ``groups``: compiles each ``usd_gs.pipeline.jit_warmup`` group on its own in a fresh process with one
   thread (``NUMBA_NUM_THREADS=1``) and prints its total compile seconds and largest kernels.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_cold_start.py timeline process stages/demo.usda -o /tmp/x.usdc -q
@@ -33,7 +33,7 @@ class L(event.Listener):
             fn = getattr(ev.data.get("dispatcher"), "py_func", None)
             acc[fn.__qualname__ if fn else "?"] = t
 event.register("numba:compile", L())
-from usd_gs.jit_warmup import warm_up
+from usd_gs.pipeline.jit_warmup import warm_up
 warm_up((sys.argv[1],))
 top = sorted(acc.items(), key=lambda kv: -kv[1])[:4]
 print(f"{sys.argv[1]:<8} {sum(acc.values()):6.2f} s  " + ", ".join(f"{k} {v:.2f}" for k, v in top))
@@ -41,7 +41,7 @@ print(f"{sys.argv[1]:<8} {sum(acc.values()):6.2f} s  " + ", ".join(f"{k} {v:.2f}
 
 
 def groups() -> int:
-    from usd_gs.jit_warmup import GROUPS
+    from usd_gs.pipeline.jit_warmup import GROUPS
 
     print("compile seconds per warm-up group (fresh cache each, one thread):")
     for g in GROUPS:
@@ -69,7 +69,7 @@ def timeline(argv: list[str]) -> int:
                 print(f"{start - t0:7.2f} {time.perf_counter() - start:6.2f}  {name}", flush=True)
 
     event.register("numba:compile", _Listener())
-    from usd_gs import jit_warmup
+    from usd_gs.pipeline import jit_warmup
 
     wait = jit_warmup.WarmUp.wait
 

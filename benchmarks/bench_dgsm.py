@@ -27,9 +27,9 @@ import numpy as np
 from plyfile import PlyData
 
 from numba_kernels import cubemap, dgsm_build, dgsm_exact, dgsm_sample
-from usd_gs.bench_ablation import timed
+from usd_gs.evaluation.ablation import timed
 from usd_gs.gaussians import GaussianSet
-from usd_gs.shadows import DGSMConfig, build_dgsm, footprint_samples, prepare_occluders, sample_dgsm
+from usd_gs.shadows.dgsm import DGSMConfig, build_dgsm, footprint_samples, prepare_occluders, sample_dgsm
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

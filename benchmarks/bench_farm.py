@@ -80,7 +80,7 @@ def main() -> int:
         # one chunk as a farm task: fresh process, warm numba cache
         first = float(a.frames.split("-")[0])
         t_imp, _ = _cli(["--version"], env)
-        code = "import usd_gs.pipeline, usd_gs.farm_executor, pxr.Usd, numba_kernels  # noqa"
+        code = "import usd_gs.pipeline.shot, usd_gs.farm.executor, pxr.Usd, numba_kernels  # noqa"
         t = time.perf_counter()
         subprocess.run([sys.executable, "-c", code], env=env, check=True)
         t_imports = time.perf_counter() - t

@@ -1,5 +1,5 @@
 """The measurements behind the relighting and 4.1-metric choices of the parallax probes and
-``usd_gs.metrics_lighting`` (each printed with what it supports).
+``usd_gs.evaluation.lighting_metrics`` (each printed with what it supports).
 
 Usage (from the repo root; ../shared/data present; the demo stage is generated if missing):
 
@@ -27,8 +27,8 @@ import numpy as np
 
 
 def occlusion_ablation() -> None:
-    from usd_gs import probe_parallax as pp
-    from usd_gs.relight_groundtruth import relight_ground_truth
+    from usd_gs.relight import parallax as pp
+    from usd_gs.evaluation.relight_groundtruth import relight_ground_truth
 
     scenes = ((True, True), (False, True), (True, False), (False, False))
 
@@ -52,8 +52,8 @@ def lamp_energy() -> None:
     import trimesh
 
     from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_angles
-    from usd_gs.avatar_from_mesh import gaussians_on_mesh, sample_surface
-    from usd_gs.probe import render_probe_faces
+    from usd_gs.demo.mesh_avatar import gaussians_on_mesh, sample_surface
+    from usd_gs.relight.probe import render_probe_faces
 
     lamp, radius = np.array([3.0, 3.2, 2.5]), 0.3
     ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
@@ -72,11 +72,11 @@ def lamp_energy() -> None:
 
 
 def apf_limits() -> None:
-    from usd_gs import relight_groundtruth as gt
+    from usd_gs.evaluation import relight_groundtruth as gt
     from usd_gs import sh3dgs
-    from usd_gs.colorimetry import luminance
+    from usd_gs.evaluation.colorimetry import luminance
     from usd_gs.gaussians import quaternion_to_matrix
-    from usd_gs.metrics_lighting import apf_y, fit_factorization, lighting_consistency, pseudo_normals
+    from usd_gs.evaluation.lighting_metrics import apf_y, fit_factorization, lighting_consistency, pseudo_normals
 
     scene = gt.make_scene(12000, (16, 32), props=True)
     av = gt.make_avatar(4000)
@@ -106,11 +106,11 @@ def demo_limits() -> None:
 
     from numba_kernels.normals import gaussian_normals
     from usd_gs import sh3dgs
-    from usd_gs.cmd_process import is_missing_demo, make_missing_demo
-    from usd_gs.colorimetry import luminance
+    from usd_gs.cli.process import is_missing_demo, make_missing_demo
+    from usd_gs.evaluation.colorimetry import luminance
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.lights import alpha_weighted_centroid
-    from usd_gs.metrics_lighting import (
+    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.evaluation.lighting_metrics import (
         PAA_MIN_RANK,
         fit_factorization,
         gaussian_colors,
@@ -118,10 +118,10 @@ def demo_limits() -> None:
         pseudo_normals,
         scene_lighting,
     )
-    from usd_gs.probe import render_probe_faces
-    from usd_gs.probe_parallax import ProbeBlend, cube_texels, reprojected_probes
-    from usd_gs.stage_open import open_stage
-    from usd_gs.usd_io import find_gaussian_prims, read_gaussian_prim
+    from usd_gs.relight.probe import render_probe_faces
+    from usd_gs.relight.parallax import ProbeBlend, cube_texels, reprojected_probes
+    from usd_gs.usd.stage import open_stage
+    from usd_gs.usd.gaussian_prim import find_gaussian_prims, read_gaussian_prim
 
     path = "stages/demo.usda"
     if is_missing_demo(path):

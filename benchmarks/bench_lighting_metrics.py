@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from usd_gs.metrics_lighting import METRICS
-from usd_gs.metrics_lighting_stage import format_report, lighting_consistency_for_stage
-from usd_gs.relight_groundtruth import relight_ground_truth
+from usd_gs.evaluation.lighting_metrics import METRICS
+from usd_gs.evaluation.lighting_stage import format_report, lighting_consistency_for_stage
+from usd_gs.evaluation.relight_groundtruth import relight_ground_truth
 
 
 def _row(name: str, m: dict) -> str:

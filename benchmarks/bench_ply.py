@@ -5,7 +5,7 @@ Usage (from the repository root)::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_ply.py [PATH] [--n 1000000] [--degree 3] [--repeat 3]
 
 If PATH (default: a file in a temporary directory) does not exist, a random set of
-``--n`` Gaussians of SH degree ``--degree`` is generated (``usd_gs.synthetic``) and
+``--n`` Gaussians of SH degree ``--degree`` is generated (``usd_gs.demo.synthetic``) and
 written there. ``read_ply`` and ``write_ply`` are then timed, each in a fresh Python
 process so that the peak RSS printed (``resource.getrusage``) is that of a process doing
 only the import (interpreter and numpy included), resp. a read followed by a write.
@@ -30,7 +30,7 @@ def _child(mode: str, path: str, repeat: int) -> None:
     import resource
 
     t0 = time.perf_counter()
-    from usd_gs.ply_io import read_ply, write_ply
+    from usd_gs.io.ply import read_ply, write_ply
 
     t_import = time.perf_counter() - t0
     out = {"import_s": t_import}
@@ -86,8 +86,8 @@ def main(argv=None) -> None:
         path = os.path.join(tmp.name, f"random_{args.n}_sh{args.degree}.ply")
     try:
         if not os.path.exists(path):
-            from usd_gs.ply_io import write_ply
-            from usd_gs.synthetic import random_gaussians
+            from usd_gs.io.ply import write_ply
+            from usd_gs.demo.synthetic import random_gaussians
 
             t = time.perf_counter()
             g = random_gaussians(args.n, args.degree, args.seed)

@@ -5,7 +5,7 @@ Prints, side by side:
   (numba_kernels/rasterize_reference.py) on small scenes (64x48, a few hundred Gaussians);
 - wall (and process CPU) time of six 64x64 cube faces and of one 960x540 view of
   1,000,000-Gaussian scenes: a room-like scene (walls + furniture) and
-  ``usd_gs.synthetic.random_gaussians`` (issue targets: <= 0.5 s and <= 2 s), plus the real
+  ``usd_gs.demo.synthetic.random_gaussians`` (issue targets: <= 0.5 s and <= 2 s), plus the real
   biker.ply capture (152,746 splats) when ../shared/data is present; after a warm-up call
   (numba compile and cache load excluded), best of ``--repeats``.
 
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from usd_gs import sh3dgs
-from usd_gs.camera import Camera
+from usd_gs.render.camera import Camera
 from usd_gs.gaussians import GaussianSet
 
 
@@ -144,7 +144,7 @@ def best_time(fn, repeats):
 
 
 def bench_scene(name, scene, probe, cam, repeats, png_dir):
-    from usd_gs.render import cube_faces_cross, render, render_cube_faces, write_png
+    from usd_gs.render.rasterize import cube_faces_cross, render, render_cube_faces, write_png
 
     print(f"\n== {name}: {scene.count:,} Gaussians, SH degree {scene.sh_degree} ==")
     t, c, (rgb6, a6, _) = best_time(lambda: render_cube_faces(scene, probe, 64), repeats)
@@ -169,8 +169,8 @@ def main():
     import numba
 
     from numba_kernels.rasterize_reference import render_reference
-    from usd_gs.render import render
-    from usd_gs.synthetic import random_gaussians
+    from usd_gs.render.rasterize import render
+    from usd_gs.demo.synthetic import random_gaussians
 
     print(f"numba threads: {numba.get_num_threads()}, load average: {os.getloadavg()[0]:.2f}")
     print("== fast path vs brute-force float64 reference (64x48) ==")
@@ -192,7 +192,7 @@ def main():
                 args.repeats, args.png_dir)
     biker = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "splats" / "biker.ply"
     if biker.exists():
-        from usd_gs.ply_io import read_ply
+        from usd_gs.io.ply import read_ply
 
         g = read_ply(biker)  # Y-up, feet at y = 0, head at y ~ 3.1
         centre = np.array([0.0, 1.6, 0.0])

@@ -59,9 +59,9 @@ def _rel_err(a, b):
 def dome_check(size: int = 64, n: int = 32768) -> None:
     """Issue 3.4 ground truth with the rasteriser: HDR sky dome -> cube faces -> eq. 7 fit,
     vs. the direct SH projection of the (64 x 128 box-filtered) HDR."""
-    from usd_gs import envmap
-    from usd_gs.probe import fit_probe, hdr_dome_gaussians
-    from usd_gs.render import render_cube_faces
+    from usd_gs.io import envmap
+    from usd_gs.relight.probe import fit_probe, hdr_dome_gaussians
+    from usd_gs.render.rasterize import render_cube_faces
 
     data = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hdri"
     print(f"dome check: {n} dome Gaussians, cube faces 6 x {size} x {size}; relative L2 coefficient error "
@@ -89,7 +89,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--q", type=float, default=1.0)
-    ap.add_argument("--dome", action="store_true", help="only run the HDR sky-dome probe check (needs usd_gs.render)")
+    ap.add_argument("--dome", action="store_true", help="only run the HDR sky-dome probe check (needs usd_gs.render.rasterize)")
     args = ap.parse_args()
     if args.dome:
         dome_check()

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pxr import Usd  # noqa: E402
 
 from usd_gs.gaussians import GaussianSet  # noqa: E402
-from usd_gs.usd_io import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim  # noqa: E402
+from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim  # noqa: E402
 
 
 def make(n: int, degree: int, seed: int = 0) -> GaussianSet:

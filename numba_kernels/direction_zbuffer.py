@@ -1,6 +1,6 @@
 """Nearest distance per direction of a set of small direction discs: a cube-map z-buffer.
 
-Used by ``usd_gs.probe_parallax`` to test occlusion between reprojected cube-map texels: each
+Used by ``usd_gs.relight.parallax`` to test occlusion between reprojected cube-map texels: each
 texel, seen from a new point, is a disc of directions (centre ``dirs[t]``, angular radius
 ``radius[t]`` radians, a cone of the texel's solid angle) at distance ``dist[t]``; the buffer
 holds, per target texel, the smallest distance of the discs that cover the target texel's

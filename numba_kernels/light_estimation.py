@@ -4,10 +4,10 @@ Input: scene Gaussians as arrays, all in one world frame (positions (N, 3) float
 units, linear opacities (N,) float32, SH coefficients (N, (d+1)^2, 3) float32 in the 3DGS
 basis of ``usd_gs/sh3dgs.py``, degree 0..3), the avatar's alpha-weighted centroid ``c`` (3,)
 and the viewpoints ``v_1..v_V`` (V, 3) near the character (built by the caller, see
-``usd_gs.lights.make_viewpoints``). Distances in ``cfg`` are in scene units (the wrapper
+``usd_gs.relight.light_estimation.make_viewpoints``). Distances in ``cfg`` are in scene units (the wrapper
 converts metres). Nothing depends on the up axis except the viewpoint layout.
 
-The steps, with the defaults of ``usd_gs.lights.LightEstimationConfig``:
+The steps, with the defaults of ``usd_gs.relight.light_estimation.LightEstimationConfig``:
 
 1. ROI: Gaussian i takes part when ``|p_i - c| <= roi_radius`` (6 m), its opacity
    ``a_i >= min_opacity`` (1/255) and all its values are finite.
@@ -383,7 +383,7 @@ def estimate_lights_arrays(positions, opacities, sh, centroid, viewpoints, k, cf
 
     positions (N, 3), opacities (N,), sh (N, K, 3) (converted to contiguous float32 if needed),
     centroid (3,), viewpoints (V, 3) in scene units, k >= 0 lights; ``cfg`` has the attributes
-    of ``usd_gs.lights.LightEstimationConfig`` with distances already in scene units.
+    of ``usd_gs.relight.light_estimation.LightEstimationConfig`` with distances already in scene units.
 
     Returns a dict of numpy arrays: ``index`` (L,) winner Gaussian indices, ``position`` (L, 3),
     ``color`` (L, 3), ``intensity`` (L,), ``score`` (L,) (all float64, sorted by decreasing

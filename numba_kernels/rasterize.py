@@ -7,7 +7,7 @@ same definition by brute force in float64):
    mapping a world point ``p`` to *view coordinates* ``q = view_rot @ p + view_t`` with
    ``q = (x right, y down, z depth)``; ``z > 0`` in front of the camera. (For a USD camera,
    which looks down its local -Z with +Y up, ``view_rot = diag(1, -1, -1) @ R^T`` where
-   ``R`` is world-from-camera; see ``usd_gs/camera.py``.) Pixel coordinates of the centre:
+   ``R`` is world-from-camera; see ``usd_gs/render/camera.py``.) Pixel coordinates of the centre:
    ``u = fx x / z + cx``, ``v = fy y / z + cy``; the image spans ``[0, W] x [0, H]`` and
    pixel (row i, column j) has its centre at ``(j + 0.5, i + 0.5)``.
 2. Culling: a Gaussian is dropped for a camera when ``z <= near`` or ``z > far``, when its

@@ -1,2 +1,2 @@
 """Resource package: the usd-gs codeless USD schema (``plugInfo.json``, ``generatedSchema.usda``,
-``schema.usda``). Installed as ``usd_gs.schemas``; registered by ``usd_gs.schema.register_plugins``."""
+``schema.usda``). Installed as ``usd_gs.schemas``; registered by ``usd_gs.usd.schema.register_plugins``."""

@@ -17,7 +17,7 @@ def _digests(folder: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="session")
 def quick_demo(tmp_path_factory):
-    """Path of the --quick demo stage (``usd_gs.demo_stage.QUICK``), made once per test session
+    """Path of the --quick demo stage (``usd_gs.demo.stage.QUICK``), made once per test session
     through the CLI entry (``usdgs demo make --quick``, data found by the default search) into a
     folder ``stages/`` that does not exist yet.
 

@@ -120,10 +120,10 @@ def make_emitter_test_scene(seed: int = 0, degree: int = 0, spacing: float = 0.1
 
 
 def read_capture(path) -> GaussianSet:
-    """Real capture as a GaussianSet: ``usd_gs.ply_io.read_ply`` when that module is available,
+    """Real capture as a GaussianSet: ``usd_gs.io.ply.read_ply`` when that module is available,
     else a minimal INRIA-layout PLY reader (plyfile), SH degree 0..3."""
     try:
-        from usd_gs.ply_io import read_ply
+        from usd_gs.io.ply import read_ply
     except ImportError:
         read_ply = None
     if read_ply is not None:

@@ -10,7 +10,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from usd_gs import sh3dgs
-from usd_gs.avatar_from_mesh import (
+from usd_gs.demo.mesh_avatar import (
     barycentric_points,
     bilinear,
     face_areas,
@@ -20,7 +20,7 @@ from usd_gs.avatar_from_mesh import (
     sample_colors,
     sample_surface,
 )
-from usd_gs.gltf_skin import load_skinned_mesh, pose
+from usd_gs.io.gltf import load_skinned_mesh, pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CESIUM = DATA / "humans" / "CesiumMan.glb"
@@ -211,9 +211,9 @@ def test_inset_moves_centres_inwards_along_the_normal(sphere):
 def _silhouettes(g, verts, faces, views, size=800):
     """(alpha (K, H, W), mesh mask (K, H, W), pixel size m) of ``g`` (no low-pass dilation) and of
     the mesh (ray cast) from cameras at ``views`` [(eye, target)] with a 2.2 m tall field."""
-    from usd_gs.camera import Camera
-    from usd_gs.metrics_shadow import ray_intersector
-    from usd_gs.render import render
+    from usd_gs.render.camera import Camera
+    from usd_gs.evaluation.shadow_metrics import ray_intersector
+    from usd_gs.render.rasterize import render
 
     inter = ray_intersector(verts, faces)
     alphas, masks = [], []

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from usd_gs.bench_ablation import Variant, pareto_front, run_variants, variants
-from usd_gs.shadows import DGSMConfig
+from usd_gs.evaluation.ablation import Variant, pareto_front, run_variants, variants
+from usd_gs.shadows.dgsm import DGSMConfig
 
 
 def test_pareto_front_against_brute_force():
@@ -42,9 +42,9 @@ def test_variant_list_covers_the_ablations():
 def sphere_frame():
     import test_metrics_shadow as tm
 
-    from usd_gs.camera import Camera
-    from usd_gs.eval_stage import FrameInputs
-    from usd_gs.shot_shadows import Receivers
+    from usd_gs.render.camera import Camera
+    from usd_gs.evaluation.shadow_stage import FrameInputs
+    from usd_gs.shadows.shot import Receivers
 
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=tm.R_SPHERE)
     cam = Camera.look_at((0.0, 3.0, 0.01), (0.0, 0.0, 0.0), width=96, height=96, fov_y_deg=40.0)
@@ -55,8 +55,8 @@ def sphere_frame():
 
 
 def test_run_variants_and_report(sphere_frame, tmp_path):
-    from usd_gs.bench_ablation import culling_timings
-    from usd_gs.bench_report import write_report
+    from usd_gs.evaluation.ablation import culling_timings
+    from usd_gs.evaluation.report import write_report
 
     base = DGSMConfig()
     var = [Variant("default", "default", base),

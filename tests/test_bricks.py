@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from usd_gs.bricks import brick_indices
+from usd_gs.usd.bricks import brick_indices
 from usd_gs.cli import main
 from usd_gs.errors import UserError
-from usd_gs.synthetic import random_gaussians
+from usd_gs.demo.synthetic import random_gaussians
 
 
 def test_bricks_partition_with_bounded_sizes():
@@ -35,8 +35,8 @@ def test_import_brick_size(tmp_path, capsys):
     from pxr import Usd
 
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.ply_io import write_ply
-    from usd_gs.usd_io import read_gaussian_prim
+    from usd_gs.io.ply import write_ply
+    from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
     g = random_gaussians(3000, 1, seed=3)
     write_ply(tmp_path / "in.ply", g)

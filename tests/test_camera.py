@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from numba_kernels.cubemap_dirs import cube_face_directions
-from usd_gs.camera import CUBE_FACE_NAMES, Camera, cube_face_cameras
+from usd_gs.render.camera import CUBE_FACE_NAMES, Camera, cube_face_cameras
 from usd_gs.errors import UserError
 
 

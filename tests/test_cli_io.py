@@ -17,7 +17,7 @@ BIKER_PLY = DATA / "splats" / "biker.ply"
 
 
 def write_raw_ply(path, n=20, degree=1, drop=(), nan_at=None, extra_fields=()):
-    """A small INRIA-layout PLY written with plyfile directly (independent of usd_gs.ply_io)."""
+    """A small INRIA-layout PLY written with plyfile directly (independent of usd_gs.io.ply)."""
     rng = np.random.default_rng(0)
     k = (degree + 1) ** 2 - 1
     names = ["x", "y", "z", *extra_fields, "f_dc_0", "f_dc_1", "f_dc_2", *[f"f_rest_{i}" for i in range(3 * k)],

@@ -24,8 +24,8 @@ def _eval(capsys, *argv):
 
 
 def test_eval_json_matches_the_library_and_stored_matte(processed, capsys):
-    from usd_gs.eval_stage import caster_strength, evaluate_frame, frame_inputs, open_eval_stage
-    from usd_gs.shadows import DGSMConfig
+    from usd_gs.evaluation.shadow_stage import caster_strength, evaluate_frame, frame_inputs, open_eval_stage
+    from usd_gs.shadows.dgsm import DGSMConfig
 
     code, out, _ = _eval(capsys, processed, "--frames", "1", "--width", "320", "--json")
     assert code == 0
@@ -40,7 +40,7 @@ def test_eval_json_matches_the_library_and_stored_matte(processed, capsys):
         assert np.isfinite(fr["relit"][key])
     # PAA-Y is null (undetermined, JSON null rather than a non-standard NaN) exactly when the
     # scene neighbourhood's normals determine too few SH coefficients
-    from usd_gs.metrics_lighting import PAA_MIN_RANK
+    from usd_gs.evaluation.lighting_metrics import PAA_MIN_RANK
 
     assert (fr["relit"]["paa_y"] is None) == (fr["scene_sh_rank"] < PAA_MIN_RANK)
     assert "NaN" not in out

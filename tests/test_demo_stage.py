@@ -1,4 +1,4 @@
-"""The demo stage generator (usd_gs/demo_stage.py) and ``usdgs demo make``, on the --quick demo."""
+"""The demo stage generator (usd_gs/demo/stage.py) and ``usdgs demo make``, on the --quick demo."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux  # noqa: E402
 
 import usd_gs  # noqa: F401  (registers the role schema before any stage is opened)
-from usd_gs import demo_stage as ds
+from usd_gs.demo import stage as ds
 from usd_gs import sh3dgs
 from usd_gs.cli import main
 from usd_gs.errors import UserError
-from usd_gs.room_scene import PART_LAMP, make_room
-from usd_gs.schema import read_role  # noqa: E402
-from usd_gs.usd_io import read_gaussian_prim  # noqa: E402
-from usd_gs.validate import validate_stage  # noqa: E402
+from usd_gs.demo.room import PART_LAMP, make_room
+from usd_gs.usd.schema import read_role  # noqa: E402
+from usd_gs.usd.gaussian_prim import read_gaussian_prim  # noqa: E402
+from usd_gs.usd.validate import validate_stage  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 QUICK_FRAMES = ds.QUICK.frames
@@ -68,7 +68,7 @@ def room_gaussians(stage):
 
 
 def test_room_bricks_partition_make_room(stage):
-    from usd_gs.bricks import brick_indices
+    from usd_gs.usd.bricks import brick_indices
 
     room = make_room(density=ds.QUICK.room_density, seed=0)
     bricks, sets = room_gaussians(stage)
@@ -117,7 +117,7 @@ def test_lamp_ground_truth(stage):
     np.testing.assert_allclose(inten, [lp.intensity for lp in lamps], atol=0)
     np.testing.assert_allclose(np.array(world.GetCustomDataByKey("usdgs:demo:roomSize")), [8, 3, 8])
     # The room's emitters (the brightest Gaussians) sit at the recorded lamps.
-    from usd_gs.bricks import brick_indices
+    from usd_gs.usd.bricks import brick_indices
     from usd_gs.gaussians import GaussianSet
 
     room = make_room(density=ds.QUICK.room_density)
@@ -363,7 +363,7 @@ def test_bad_options_exit_2(tmp_path, capsys):
 
 
 def test_room_detail_only_in_the_default_demo():
-    from usd_gs.room_scene import DetailRegion
+    from usd_gs.demo.room import DetailRegion
 
     assert ds.room_detail(ds.QUICK) == []
     assert ds.room_detail(ds.DemoOptions()) == [DetailRegion(lo, hi, 6400.0) for lo, hi in ds.SHADOW_DETAIL]
@@ -376,10 +376,10 @@ def test_shadow_detail_holds_cesium_mans_shadows():
     """Every floor / x = -4 wall point where CesiumMan's mesh shadow (strength > 0.1, the lamps
     weighted as the pipeline does) falls inside the 2 m evaluation ROI, over the walk loop, lies
     in a SHADOW_DETAIL box (the check can fail: the shadow reaches x > 0.2 outside the ROI)."""
-    from usd_gs.avatar_from_mesh import posed_meshes
-    from usd_gs.gltf_skin import load_skinned_mesh
-    from usd_gs.light_prims import ShotLight
-    from usd_gs.metrics_shadow import mesh_shadow_matte
+    from usd_gs.demo.mesh_avatar import posed_meshes
+    from usd_gs.io.gltf import load_skinned_mesh
+    from usd_gs.usd.lux import ShotLight
+    from usd_gs.evaluation.shadow_metrics import mesh_shadow_matte
 
     lights = [ShotLight(f"lamp{i}", "point", lp.position, color=lp.color, intensity=lp.intensity)
               for i, lp in enumerate(make_room(density=10.0).lamps)]

@@ -1,11 +1,11 @@
-"""usd_gs.shadows wrapper: ROI selection, end-to-end accuracy, directional, errors."""
+"""usd_gs.shadows.dgsm wrapper: ROI selection, end-to-end accuracy, directional, errors."""
 
 import numpy as np
 import pytest
 
 from usd_gs.errors import GaussianDataError, UserError
 from usd_gs.gaussians import GaussianSet
-from usd_gs.shadows import (
+from usd_gs.shadows.dgsm import (
     DGSMConfig,
     build_dgsm,
     exact_transmittance,

@@ -9,10 +9,10 @@ from farm_compare import stage_differences
 from pxr import Gf, Sdf, Usd
 
 from usd_gs.cli import main
-from usd_gs.farm_clips import assemble
-from usd_gs.farm_executor import ChunkFailed, run_chunk
-from usd_gs.farm_run import run_farm
-from usd_gs.pipeline import ProcessOptions
+from usd_gs.farm.clips import assemble
+from usd_gs.farm.executor import ChunkFailed, run_chunk
+from usd_gs.farm.run import run_farm
+from usd_gs.pipeline.shot import ProcessOptions
 
 FRAMES = [1.0, 2.0, 3.0, 4.0]
 

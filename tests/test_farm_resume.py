@@ -17,7 +17,7 @@ from farm_compare import stage_differences
 from pxr import Sdf
 
 from usd_gs.cli import main
-from usd_gs.farm_chunks import Chunk, plan_chunks
+from usd_gs.farm.chunks import Chunk, plan_chunks
 
 FRAMES = [1.0, 2.0, 3.0, 4.0]
 

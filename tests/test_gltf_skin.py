@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from usd_gs.errors import InputFormatError
-from usd_gs.gltf_skin import (
+from usd_gs.io.gltf import (
     AnimationChannel,
     load_skinned_mesh,
     loop_period,
@@ -82,7 +82,7 @@ def test_rest_pose_matches_trimesh_and_bind(cesium):
     world_rest = m.rest_vertices @ mesh_world[:3, :3].T + mesh_world[:3, 3]
     np.testing.assert_allclose(verts, world_rest, atol=1e-5)
     # LBS with the bind pose (G = IBM^-1) is the identity on the mesh-space vertices.
-    from usd_gs.gltf_skin import skin_vertices
+    from usd_gs.io.gltf import skin_vertices
     eye_skin = np.linalg.inv(m.inverse_bind_matrices) @ m.inverse_bind_matrices
     v_bind, _ = skin_vertices(eye_skin, m.joints, m.weights, m.rest_vertices)
     np.testing.assert_allclose(v_bind, m.rest_vertices, atol=1e-5)

@@ -1,5 +1,5 @@
 """Compile-time invariants: one numba specialisation per kernel for the inputs the main job passes,
-and the parallel JIT warm-up (usd_gs.jit_warmup) creates exactly one per rasteriser kernel."""
+and the parallel JIT warm-up (usd_gs.pipeline.jit_warmup) creates exactly one per rasteriser kernel."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def test_relight_one_specialisation_for_readonly_and_writable_inputs():
 
 
 def test_warm_up_compiles_one_specialisation_per_rasteriser_kernel():
-    from usd_gs import jit_warmup
+    from usd_gs.pipeline import jit_warmup
 
     jit_warmup.warm_up()
     for kernel in (rasterize._cull, rasterize._write_entries, rasterize._bin_tiles, rasterize._blend):

@@ -1,4 +1,4 @@
-"""The parallel JIT warm-up (usd_gs.jit_warmup): it must fill exactly the cache entries that the
+"""The parallel JIT warm-up (usd_gs.pipeline.jit_warmup): it must fill exactly the cache entries that the
 main job needs after light estimation, and only start when the numba cache is cold."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import subprocess
 import sys
 import textwrap
 
-from usd_gs import jit_warmup
+from usd_gs.pipeline import jit_warmup
 
 _SIGNATURE_DIFF = textwrap.dedent("""
     import importlib, pkgutil, sys
@@ -24,7 +24,7 @@ _SIGNATURE_DIFF = textwrap.dedent("""
                     out[m.name + "." + k] = set(map(str, v.signatures))
         return out
 
-    from usd_gs import jit_warmup
+    from usd_gs.pipeline import jit_warmup
     jit_warmup.warm_up()
     before = signatures()
     from usd_gs.cli import main
@@ -46,8 +46,8 @@ def test_warm_up_types_match_the_main_job(quick_demo, tmp_path):
 
 
 def test_starts_only_on_a_cold_cache(tmp_path, monkeypatch):
-    from usd_gs.render import render_cube_faces
-    from usd_gs.synthetic import random_gaussians
+    from usd_gs.render.rasterize import render_cube_faces
+    from usd_gs.demo.synthetic import random_gaussians
 
     render_cube_faces(random_gaussians(8, 0), (0.0, 0.0, 0.0), 8)  # compiles (and caches) the sentinel kernel
     assert not jit_warmup.cache_is_cold()
@@ -57,7 +57,7 @@ def test_starts_only_on_a_cold_cache(tmp_path, monkeypatch):
     jit_warmup.stop(None)
     # an empty cache directory is cold
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nbcache"))
-    r = subprocess.run([sys.executable, "-c", "from usd_gs import jit_warmup; print(jit_warmup.cache_is_cold())"],
+    r = subprocess.run([sys.executable, "-c", "from usd_gs.pipeline import jit_warmup; print(jit_warmup.cache_is_cold())"],
                        capture_output=True, text=True, env=env, check=True)
     assert r.stdout.strip() == "True"
 
@@ -79,7 +79,7 @@ def test_warm_up_process_imports_the_main_process_package(tmp_path):
     here = str(Path(usd_gs.__file__).resolve().parent.parent)  # the copy this test imported, absolute
     env = dict(os.environ, USDGS_JIT_WARMUP_PACKAGE=str(tmp_path / "elsewhere"), NUMBA_CACHE_DIR=str(tmp_path / "c"),
                PYTHONPATH=here)
-    r = subprocess.run([sys.executable, "-P", "-m", "usd_gs.jit_warmup", "relight"], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-P", "-m", "usd_gs.pipeline.jit_warmup", "relight"], capture_output=True, text=True,
                        env=env, cwd=tmp_path)
     assert r.returncode != 0 and "the main process runs" in r.stderr
     assert not (tmp_path / "c").exists() or not any((tmp_path / "c").rglob("*.nbi"))

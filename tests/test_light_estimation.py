@@ -25,7 +25,7 @@ from numba_kernels.light_estimation_reference import reference_cues, reference_e
 from usd_gs import sh3dgs  # noqa: E402
 from usd_gs.errors import GaussianDataError, UserError  # noqa: E402
 from usd_gs.gaussians import GaussianSet  # noqa: E402
-from usd_gs.lights import (  # noqa: E402
+from usd_gs.relight.light_estimation import (  # noqa: E402
     LightEstimationConfig,
     alpha_weighted_centroid,
     estimate_lights,

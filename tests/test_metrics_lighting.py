@@ -1,14 +1,14 @@
-"""Paper 4.1 lighting-consistency metrics against analytic cases (usd_gs.metrics_lighting)."""
+"""Paper 4.1 lighting-consistency metrics against analytic cases (usd_gs.evaluation.lighting_metrics)."""
 
 import numpy as np
 import pytest
 import trimesh
 
 from usd_gs import sh3dgs
-from usd_gs.avatar_from_mesh import gaussians_on_mesh, sample_surface
-from usd_gs.colorimetry import luminance, rgb_to_lab
+from usd_gs.demo.mesh_avatar import gaussians_on_mesh, sample_surface
+from usd_gs.evaluation.colorimetry import luminance, rgb_to_lab
 from usd_gs.errors import UserError
-from usd_gs.metrics_lighting import (
+from usd_gs.evaluation.lighting_metrics import (
     apf_y,
     emd_2d,
     fit_factorization,
@@ -157,10 +157,10 @@ def test_lighting_consistency_for_stage(tmp_path):
     that sublayers the input; the original colours come from the input layer."""
     from pxr import Sdf, Usd, Vt
 
-    from usd_gs.metrics_lighting import lighting_consistency_for_stage
-    from usd_gs.output_author import LIGHT_SCALE, SH_COEFFS
-    from usd_gs.schema import apply_role
-    from usd_gs.usd_io import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.evaluation.lighting_metrics import lighting_consistency_for_stage
+    from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS
+    from usd_gs.usd.schema import apply_role
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
 
     tint = (1.0, 0.8, 0.55)
     avatar = sphere(0.4, 2000)
@@ -199,7 +199,7 @@ def test_lighting_consistency_for_stage(tmp_path):
 
 
 def test_sh_rank_counts_the_coefficients_the_normals_determine():
-    from usd_gs.metrics_lighting import sh_rank
+    from usd_gs.evaluation.lighting_metrics import sh_rank
 
     assert sh_rank(radial(sphere(0.5, 2000))) == 16
     assert sh_rank(np.tile([0.0, 1.0, 0.0], (500, 1))) == 1  # a floor
@@ -209,7 +209,7 @@ def test_sh_rank_counts_the_coefficients_the_normals_determine():
 
 # ----------------------------------------------------------------------------- rank-limited scenes
 def test_paa_compares_only_what_the_scene_normals_determine():
-    from usd_gs.metrics_lighting import sh_basis
+    from usd_gs.evaluation.lighting_metrics import sh_basis
 
     everywhere = radial(sphere(0.5, 4000))
     # normals over the whole sphere: the paper's plain L1 distance (k ~ 1, P = I)
@@ -231,7 +231,7 @@ def test_visible_from_hides_what_a_ball_covers():
     """A floor patch under a ball, seen from above: hidden = the segment to the eye crosses the
     ball (analytic ray-sphere test), for the floor and for the ball's own far side."""
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.point_visibility import visible_from
+    from usd_gs.evaluation.point_visibility import visible_from
 
     plane = trimesh.Trimesh([[-1.5, 0, -1.5], [1.5, 0, -1.5], [1.5, 0, 1.5], [-1.5, 0, 1.5]], [[0, 2, 1], [0, 3, 2]])
     face, bary = sample_surface(plane.vertices, plane.faces, 30000, 1)
@@ -288,8 +288,8 @@ def test_scene_lighting_leaves_out_what_the_avatar_does_not_see():
 
 
 def test_undetermined_paa_is_nan_and_left_out_of_the_means():
-    from usd_gs.metrics_lighting import PAA_MIN_RANK, summarize
-    from usd_gs.metrics_lighting_stage import format_report
+    from usd_gs.evaluation.lighting_metrics import PAA_MIN_RANK, summarize
+    from usd_gs.evaluation.lighting_stage import format_report
 
     avatar = sphere(0.4, 2000)
     plane = trimesh.Trimesh([[-1.5, 0, -1.5], [1.5, 0, -1.5], [1.5, 0, 1.5], [-1.5, 0, 1.5]], [[0, 2, 1], [0, 3, 2]])

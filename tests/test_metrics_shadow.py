@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from usd_gs.camera import Camera
+from usd_gs.render.camera import Camera
 from usd_gs.gaussians import GaussianSet
-from usd_gs.light_prims import ShotLight
-from usd_gs.metrics_shadow import (
+from usd_gs.usd.lux import ShotLight
+from usd_gs.evaluation.shadow_metrics import (
     boundary_f_measure,
     mask_boundary,
     mesh_shadow_matte,
@@ -149,9 +149,9 @@ def test_dgsm_matte_agrees_with_the_mesh_matte():
     mesh, through a camera looking down at the floor. Measured: IoU 0.909, BF 0.756, SAE 0.008;
     the DGSM disc is 5 % wider (39.2 px against 37.3 px: the Gaussians' tails reach about one
     standard deviation, 1.2 cm, past the sphere's silhouette). The bounds leave a margin."""
-    from usd_gs.eval_stage import caster_strength
-    from usd_gs.shadows import DGSMConfig
-    from usd_gs.shot_shadows import Receivers
+    from usd_gs.evaluation.shadow_stage import caster_strength
+    from usd_gs.shadows.dgsm import DGSMConfig
+    from usd_gs.shadows.shot import Receivers
 
     floor = _floor()
     recv = Receivers.build([("/floor", floor)])

@@ -186,7 +186,7 @@ def test_parallel_cylinders_with_small_gaps_do_not_flip_whole_cylinders():
 def test_mesh_avatar_normals_point_out_of_the_body(n):
     """CesiumMan surface Gaussians (local z = mesh normal): previously 1.1 / 2.7 / 7.7 % pointed
     into the body (flat low-poly faces, thin limbs); measured 1 / 0 / 5 Gaussians now."""
-    from usd_gs.relight_groundtruth import make_avatar
+    from usd_gs.evaluation.relight_groundtruth import make_avatar
 
     a = make_avatar(n)
     true = quaternion_to_matrix(a.orientations)[:, :, 2]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pxr import Usd
 
-from usd_gs.output_author import LIGHT_SCALE, SH_COEFFS, TRANSMITTANCE, OutputAuthor
+from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS, TRANSMITTANCE, OutputAuthor
 
 
 def _sequence(n: int = 3):

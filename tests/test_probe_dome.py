@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usd_gs import envmap
-from usd_gs.probe import fit_probe, hdr_dome_gaussians
-from usd_gs.render import render_cube_faces
+from usd_gs.io import envmap
+from usd_gs.relight.probe import fit_probe, hdr_dome_gaussians
+from usd_gs.render.rasterize import render_cube_faces
 
 HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hdri"
 HDRS = sorted(HDRI.glob("*.hdr")) + sorted(HDRI.glob("*.exr"))

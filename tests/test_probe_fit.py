@@ -10,9 +10,10 @@ import pytest
 from numba_kernels import cubemap_dirs as cm
 from numba_kernels import sh_real
 from numba_kernels.probe_fit import CubeProbeFitter, fit_sh_lstsq, normal_equations
-from usd_gs import envmap, sh3dgs
+from usd_gs import sh3dgs
+from usd_gs.io import envmap
 from usd_gs.errors import InputFormatError, UserError
-from usd_gs.probe import SHProbe, fit_probe, hdr_dome_gaussians, probe_from_latlong
+from usd_gs.relight.probe import SHProbe, fit_probe, hdr_dome_gaussians, probe_from_latlong
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 HDRIS = sorted((DATA / "hdri").glob("*"))
@@ -219,12 +220,12 @@ def test_probe_module_conversion_matches_kernel_and_does_not_import_numba():
     import subprocess
     import sys
 
-    from usd_gs import probe as probe_mod
+    from usd_gs.relight import probe as probe_mod
 
     a = np.random.default_rng(9).normal(size=(16, 3))
     np.testing.assert_array_equal(probe_mod.rh_to_3dgs(a), sh_real.rh_to_3dgs(a))
     np.testing.assert_array_equal(probe_mod.threedgs_to_rh(probe_mod.rh_to_3dgs(a)), a)
-    code = "import sys, usd_gs.envmap, usd_gs.probe; sys.exit(1 if 'numba' in sys.modules else 0)"
+    code = "import sys, usd_gs.io.envmap, usd_gs.relight.probe; sys.exit(1 if 'numba' in sys.modules else 0)"
     root = Path(__file__).resolve().parents[1]
     res = subprocess.run([sys.executable, "-c", code], cwd=root, env={"PYTHONPATH": str(root)}, check=False)
-    assert res.returncode == 0, "usd_gs.envmap / usd_gs.probe import numba at import time"
+    assert res.returncode == 0, "usd_gs.io.envmap / usd_gs.relight.probe import numba at import time"

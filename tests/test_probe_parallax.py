@@ -1,11 +1,11 @@
-"""Parallax-corrected probes (usd_gs.probe_parallax) against analytic irradiance."""
+"""Parallax-corrected probes (usd_gs.relight.parallax) against analytic irradiance."""
 
 import numpy as np
 import trimesh
 
 from numba_kernels.sh_real import band_of_index, cosine_lobe_band_factors, eval_basis_rh_numpy
-from usd_gs.avatar_from_mesh import gaussians_on_mesh, sample_surface
-from usd_gs.probe_parallax import (
+from usd_gs.demo.mesh_avatar import gaussians_on_mesh, sample_surface
+from usd_gs.relight.parallax import (
     blend_weights,
     cluster_centres,
     cube_texels,
@@ -13,7 +13,7 @@ from usd_gs.probe_parallax import (
     probe_clusters,
     reprojected_probes,
 )
-from usd_gs.render import render_cube_faces
+from usd_gs.render.rasterize import render_cube_faces
 
 
 def _emitting_ball(centre, radius, radiance, n=3000):
@@ -82,7 +82,7 @@ def test_at_the_centre_it_is_the_plain_projection():
 
 def test_distant_texels_keep_their_direction():
     """Texels at a large distance (a sky dome) give the same probe from any nearby point."""
-    from usd_gs.probe import hdr_dome_gaussians
+    from usd_gs.relight.probe import hdr_dome_gaussians
 
     env = np.random.default_rng(0).uniform(0.2, 1.0, (8, 16, 3)).astype(np.float32)
     dome = hdr_dome_gaussians(env, radius=1000.0, n=128, sigma_factor=0.6)
@@ -113,7 +113,7 @@ def test_clusters_weights_and_centres():
 
 
 def test_probe_blend_weights_follow_the_prim():
-    from usd_gs.probe_parallax import ProbeBlend
+    from usd_gs.relight.parallax import ProbeBlend
 
     x = np.random.default_rng(2).uniform(-1.0, 1.0, (2000, 3))
     b = ProbeBlend.build(x, 6)
@@ -127,7 +127,7 @@ def test_process_options_check_probe_points_and_transfer_degree():
     import pytest
 
     from usd_gs.errors import UserError
-    from usd_gs.pipeline import ProcessOptions
+    from usd_gs.pipeline.shot import ProcessOptions
 
     assert ProcessOptions().check().probe_points == 8
     for bad in (dict(probe_points=0), dict(probe_points=65), dict(transfer_degree=9), dict(transfer_degree=-1),
@@ -146,7 +146,7 @@ def test_a_panel_moved_in_front_of_the_sky_hides_it():
     point (measured +67 %). (A slab, not a single sheet of splats: through one sheet of opacity
     0.99 the far sky leaks into the expected depth, 1 % of 500 m.)"""
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.probe import hdr_dome_gaussians
+    from usd_gs.relight.probe import hdr_dome_gaussians
 
     z, half = -1.0, 0.5
     slab = trimesh.creation.box(extents=(2 * half, 2 * half, 0.04))
@@ -194,7 +194,7 @@ def test_supersampled_probe_render_integrates_a_small_lamp():
     at 32^2): its irradiance from the probe render against the analytic ``L pi R^2 / d^2``.
     Sampled at texel centres it comes out 7.8 % too bright; drawn at 2x and filtered down, 1 %."""
     from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_angles
-    from usd_gs.probe import render_probe_faces
+    from usd_gs.relight.probe import render_probe_faces
 
     lamp, radius, radiance = np.array([3.0, 3.2, 2.5]), 0.3, 1.0
     ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)

@@ -10,7 +10,7 @@ from pxr import Gf, Sdf, Usd, UsdLux
 
 from usd_gs import sh3dgs
 from usd_gs.cli import main
-from usd_gs.usd_io import read_gaussian_prim
+from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
 FRAMES = "1-2"
 
@@ -73,9 +73,9 @@ def test_scene_transmittance_matches_exact_reference(processed):
     receiver centres (every caster, every light, combined as the pipeline does). The error
     left is the atlas discretisation (512^2 directions x 64 radial bins)."""
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.light_prims import read_stage_lights
-    from usd_gs.shading import combine_lights, light_shares
-    from usd_gs.shadows import exact_transmittance
+    from usd_gs.usd.lux import read_stage_lights
+    from usd_gs.shadows.shading import combine_lights, light_shares
+    from usd_gs.shadows.dgsm import exact_transmittance
 
     out, _, _ = processed
     stage = Usd.Stage.Open(str(out))
@@ -160,7 +160,7 @@ def test_output_is_deterministic_with_mc_sampling(quick_demo, tmp_path):
 
 
 def test_failure_leaves_no_partial_output(quick_demo, tmp_path, monkeypatch):
-    from usd_gs import pipeline
+    from usd_gs.pipeline import shot as pipeline
 
     calls = {"n": 0}
     real = pipeline.ShotProcessor._frame
@@ -214,7 +214,7 @@ def test_distant_light_uses_directional_dgsm(quick_demo, tmp_path):
     """A DistantLight straight down: the floor right under each mover is shadowed, and the
     transmittance there matches the exact parallel-ray transmittance."""
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.shadows import exact_transmittance_directional
+    from usd_gs.shadows.dgsm import exact_transmittance_directional
 
     shot = tmp_path / "sun.usda"
     stage = _shot_over(quick_demo, shot)
@@ -244,9 +244,9 @@ def test_fresh_checkout_generates_the_missing_demo_stage(tmp_path, monkeypatch, 
     """`usdgs process stages/demo.usda` in a checkout where the (git-ignored) demo was never made:
     the demo is generated first (here the --quick one, for time), then processed. Any other
     missing stage is still an error naming the file."""
-    from usd_gs import demo_stage
+    from usd_gs.demo import stage as demo_stage
     from usd_gs.cli import main
-    from usd_gs.cmd_process import is_missing_demo
+    from usd_gs.cli.process import is_missing_demo
 
     stages = tmp_path / "stages"
     stages.mkdir()
@@ -272,8 +272,8 @@ def test_a_static_avatar_is_relit_and_casts(tmp_path):
     from pxr import Usd
 
     from usd_gs.cli import main
-    from usd_gs.synthetic import random_gaussians
-    from usd_gs.usd_io import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.demo.synthetic import random_gaussians
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
 
     room = make_emitter_test_scene(spacing=0.2).gaussians
     avatar = random_gaussians(400, 0, seed=3)

@@ -10,9 +10,9 @@ from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.rasterize import rasterize
 from numba_kernels.rasterize_reference import render_reference
 from usd_gs import sh3dgs
-from usd_gs.camera import Camera
+from usd_gs.render.camera import Camera
 from usd_gs.gaussians import GaussianSet
-from usd_gs.render import cube_faces_cross, render, render_batch, render_cube_faces, to_srgb8, write_png
+from usd_gs.render.rasterize import cube_faces_cross, render, render_batch, render_cube_faces, to_srgb8, write_png
 
 IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -103,7 +103,7 @@ def test_matches_brute_force_reference(make):
 
 def test_cube_faces_match_reference():
     # mirrored (det -1) face cameras inside a scene: every face against the brute-force reference
-    from usd_gs.camera import cube_face_cameras
+    from usd_gs.render.camera import cube_face_cameras
 
     g = _scene_random(seed=7, n=250)
     centre = np.array([0.1, -0.2, 0.3])
@@ -161,7 +161,7 @@ def test_antialiased_keeps_a_small_splats_energy():
     integral op * 2 pi sigma^2 (px^2) up to the tails the 1/255 alpha floor and the 3-sigma
     support drop (< 5 % here); the plain 0.3 px^2 dilation inflates it by (sigma^2 + 0.3) / sigma^2;
     and the mode matches the brute-force reference on a random scene."""
-    from usd_gs.render import render_batch
+    from usd_gs.render.rasterize import render_batch
 
     cam = _facing_camera(65)
     z, op = 2.0, 0.99

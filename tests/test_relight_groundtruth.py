@@ -1,4 +1,4 @@
-"""Known-light ground truth for relighting (usd_gs.relight_groundtruth).
+"""Known-light ground truth for relighting (usd_gs.evaluation.relight_groundtruth).
 
 Thresholds are measured values (small sizes: 1500 avatar and 6000 scene Gaussians, 16 x 32
 environment, 32^2 probe faces) minus a margin; see README "Relighting ground truth" for the
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from usd_gs import sh3dgs
-from usd_gs.relight_groundtruth import avatar_ground_truth, make_avatar, make_scene, psnr, relight_ground_truth
+from usd_gs.evaluation.relight_groundtruth import avatar_ground_truth, make_avatar, make_scene, psnr, relight_ground_truth
 
 
 def test_bake_matches_the_analytic_lamp_on_the_floor():

@@ -1,4 +1,4 @@
-"""`usdgs render` and usd_gs/preview.py: frames to PNG/EXR, --compare, cameras, drawn prims, user errors."""
+"""`usdgs render` and usd_gs/render/preview.py: frames to PNG/EXR, --compare, cameras, drawn prims, user errors."""
 
 from __future__ import annotations
 
@@ -7,22 +7,22 @@ import pytest
 from PIL import Image
 from pxr import Gf, Usd, UsdGeom
 
-from usd_gs.camera import Camera
+from usd_gs.render.camera import Camera
 from usd_gs.cli import main
-from usd_gs.cmd_render import frame_path
-from usd_gs.demo_stage import CAMERA_APERTURE_MM
+from usd_gs.cli.render import frame_path
+from usd_gs.demo.stage import CAMERA_APERTURE_MM
 from usd_gs.gaussians import GaussianSet
-from usd_gs.preview import (
+from usd_gs.render.preview import (
     drawn_gaussian_prims,
     framing_camera,
     read_stage_gaussians,
     render_stage_frame,
     resolve_camera,
 )
-from usd_gs.render import render
-from usd_gs.stage_open import open_stage
-from usd_gs.synthetic import random_gaussians
-from usd_gs.usd_io import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim
+from usd_gs.render.rasterize import render
+from usd_gs.usd.stage import open_stage
+from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim
 
 W = 160
 H = round(W * CAMERA_APERTURE_MM[1] / CAMERA_APERTURE_MM[0])  # 90: height from the 16:9 aperture

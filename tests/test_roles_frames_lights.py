@@ -5,11 +5,11 @@ import pytest
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from usd_gs.errors import UserError
-from usd_gs.frames import parse_frames
-from usd_gs.light_prims import ShotLight, read_stage_lights, write_estimated_lights
-from usd_gs.roles import resolve_roles
-from usd_gs.schema import RoleInfo
-from usd_gs.usd_io import GaussianPrimInfo
+from usd_gs.usd.frames import parse_frames
+from usd_gs.usd.lux import ShotLight, read_stage_lights, write_estimated_lights
+from usd_gs.usd.roles import resolve_roles
+from usd_gs.usd.schema import RoleInfo
+from usd_gs.usd.gaussian_prim import GaussianPrimInfo
 
 
 def info(path, animated=False, role="auto"):
@@ -96,7 +96,7 @@ def test_write_estimated_lights_round_trip():
 
 
 def test_role_table_groups_bricks():
-    from usd_gs.roles import role_table
+    from usd_gs.usd.roles import role_table
 
     infos = [info(f"/W/Room/Brick_{i:04d}") for i in range(5)] + [info("/W/Man", True)]
     roles, _ = resolve_roles(infos)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from usd_gs import sh3dgs
-from usd_gs.room_scene import (
+from usd_gs.demo.room import (
     LUMA,
     PART_CEILING,
     PART_FLOOR,

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 from pxr import Sdf, Usd
 
-from usd_gs import schema
+from usd_gs.usd import schema
 from usd_gs.errors import UserError
-from usd_gs.schema import ROLE_API, ROLES, RoleInfo, apply_role, read_role, register_plugins, schema_dir
+from usd_gs.usd.schema import ROLE_API, ROLES, RoleInfo, apply_role, read_role, register_plugins, schema_dir
 
 REPO = Path(__file__).resolve().parents[1]
 EXPECTED = {  # property -> (type, fallback)
@@ -131,7 +131,7 @@ import sys
 from pxr import Usd
 stage = Usd.Stage.CreateInMemory()          # schema registry is built before usd-gs registers
 prim = stage.DefinePrim('/A', 'Xform')
-from usd_gs.schema import apply_role, read_role, schema_available
+from usd_gs.usd.schema import apply_role, read_role, schema_available
 assert not schema_available()
 info = apply_role(prim, 'object', casts_shadows=False)
 assert info.role == 'object' and info.applied and not info.casts_shadows and info.relight, info
@@ -142,7 +142,7 @@ print('ok')
 """
 
 _EARLY = r"""
-from usd_gs.schema import register_plugins
+from usd_gs.usd.schema import register_plugins
 register_plugins()
 from pxr import Usd
 d = Usd.SchemaRegistry().FindAppliedAPIPrimDefinition('UsdGsRoleAPI')

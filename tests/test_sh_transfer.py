@@ -14,8 +14,8 @@ from numba_kernels.sh_transfer import (
 )
 from usd_gs import sh3dgs
 from usd_gs.errors import UserError
-from usd_gs.probe import SHProbe
-from usd_gs.relight import relight_sh
+from usd_gs.relight.probe import SHProbe
+from usd_gs.relight.transfer import relight_sh
 
 
 def _unit(n, seed):
@@ -132,7 +132,7 @@ def test_relight_gaussians_end_to_end_on_a_sphere():
     """Flat Gaussians on a sphere, probe L(w) = a + <b, w> (RH band 1 = c1 (y, z, x)): the relit
     DC colour is gamma * (a + 2/3 <b, n>) * colour with n the outward sphere normal (q = 1)."""
     from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
-    from usd_gs.relight import relight_gaussians
+    from usd_gs.relight.transfer import relight_gaussians
 
     rng = np.random.default_rng(11)
     n = 3000

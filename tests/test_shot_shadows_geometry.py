@@ -1,10 +1,10 @@
-"""The conservative culling tests of usd_gs.shot_shadows against brute-force segment tests."""
+"""The conservative culling tests of usd_gs.shadows.shot against brute-force segment tests."""
 
 import numpy as np
 
 from usd_gs.gaussians import GaussianSet
-from usd_gs.light_prims import ShotLight
-from usd_gs.shot_shadows import occluders_toward, shadow_cone_indices
+from usd_gs.usd.lux import ShotLight
+from usd_gs.shadows.shot import occluders_toward, shadow_cone_indices
 
 RNG = np.random.default_rng(4)
 

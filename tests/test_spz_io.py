@@ -12,9 +12,9 @@ import pytest
 
 from usd_gs import sh3dgs
 from usd_gs.errors import InputFormatError
-from usd_gs.ply_io import read_ply
-from usd_gs.spz_io import _RDF_SH_SIGN, read_spz, write_spz
-from usd_gs.synthetic import random_gaussians
+from usd_gs.io.ply import read_ply
+from usd_gs.io.spz import _RDF_SH_SIGN, read_spz, write_spz
+from usd_gs.demo.synthetic import random_gaussians
 
 SPLATS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "splats"
 MAGIC = 0x5053474E
@@ -233,7 +233,7 @@ def test_truncated_files(tmp_path):
 
 
 def test_sh_quantisation_matches_the_reference_formula():
-    from usd_gs.spz_io import _pack_sh
+    from usd_gs.io.spz import _pack_sh
 
     def ref(x, bits):  # quantizeSHLegacy in plain Python: C++ std::round, int division, clamp
         b = 1 << (8 - bits)

@@ -1,4 +1,4 @@
-"""The static scene's shot-long DGSM (usd_gs.static_shadows) against the exact transmittance."""
+"""The static scene's shot-long DGSM (usd_gs.shadows.static_scene) against the exact transmittance."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 from dgsm_testutil import random_rotations
 
 from usd_gs.gaussians import GaussianSet
-from usd_gs.shadows import DGSMConfig, exact_transmittance
-from usd_gs.static_shadows import StaticSceneAtlas
+from usd_gs.shadows.dgsm import DGSMConfig, exact_transmittance
+from usd_gs.shadows.static_scene import StaticSceneAtlas
 
 LIGHT = np.array([0.0, 2.6, 0.0])
 

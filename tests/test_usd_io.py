@@ -13,8 +13,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError
 from usd_gs.gaussians import GaussianSet
-from usd_gs.synthetic import random_gaussians
-from usd_gs.usd_io import (
+from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.usd.gaussian_prim import (
     PLY_PREFIX,
     RAW_LOG_SCALES,
     RAW_LOGIT_OPACITIES,
@@ -447,7 +447,7 @@ def test_save_requires_existing_directory(tmp_path):
 def test_biker_ply_usd_ply_round_trip_bit_exact(tmp_path):
     import plyfile
 
-    from usd_gs.ply_io import read_ply, write_ply
+    from usd_gs.io.ply import read_ply, write_ply
 
     src = SPLATS / "biker.ply"
     g = read_ply(src)
@@ -498,7 +498,7 @@ def test_empty_set_and_multi_column_extras_round_trip():
 
 
 def test_describe_reports_applied_role():
-    from usd_gs.schema import apply_role
+    from usd_gs.usd.schema import apply_role
 
     stage = new_stage()
     prim = write_gaussian_prim(stage, "/Av", random_gaussians(3, 0))

@@ -9,7 +9,7 @@ from numba_kernels import sh_real
 from numba_kernels.sh_transfer import transfer_scale_sh
 from numba_kernels.zh_transfer import rgca_to_zonal, zh_diffuse_color, zonal_to_rgca
 from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
-from usd_gs.relight import zh_relight_gaussians
+from usd_gs.relight.transfer import zh_relight_gaussians
 
 
 def _sphere_quadrature(n_theta, n_phi):

@@ -2,8 +2,8 @@
 
 __version__ = "0.1.0"
 
-from .gaussians import GaussianSet  # noqa: E402
-from .schema import register_plugins as _register_plugins  # noqa: E402
+from usd_gs.gaussians import GaussianSet  # noqa: E402
+from usd_gs.usd.schema import register_plugins as _register_plugins  # noqa: E402
 
 _register_plugins()
 

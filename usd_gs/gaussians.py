@@ -27,8 +27,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import sh3dgs
-from .errors import GaussianDataError, first_bad_index
+from usd_gs import sh3dgs
+from usd_gs.errors import GaussianDataError, first_bad_index
 
 
 def _as_f32(name: str, a, shape_tail: tuple, label: str) -> np.ndarray:

@@ -1,0 +1,238 @@
+"""Stitching chunk layers into one stage with USD value clips (``usdgs assemble``).
+
+Given finished chunks (``usd_gs.farm.chunks``: one layer per run of frames, each with its
+own start and end time codes), :func:`assemble` writes three layers beside ``OUT``:
+
+- ``OUT`` (root): sublayers ``[<stem>.topology.usdc, INPUT]`` like the single-run output
+  (stage metadata copied from the input's root layer), and carries a ``clips`` set on every
+  root prim the chunks write (``/World``, ``/UsdGs``, ...): the chunk layers in frame order,
+  clip ``k`` active from its first frame, identity clip times.
+- ``<stem>.topology.usdc``: every prim and attribute spec of the chunks without their time
+  samples (``UsdUtils.StitchClipsTopology``: probe and light prims, their static values,
+  primvar interpolation and elementSize), plus for each overridden Gaussian prim its type,
+  ``radiance:sphericalHarmonicsDegree`` and the SH primvar's interpolation and elementSize
+  copied from the input, so the output reads right without the input's opinions.
+- ``<stem>.manifest.usdc``: the clip manifest, one spec per attribute that has samples in
+  some chunk.
+
+Values clips do not fall back to weaker layers: where the active clip has no sample for
+an attribute of the manifest, USD takes the manifest's default. A chunk leaves an
+attribute out exactly when it was unaffected at all of the chunk's frames (the single run
+then reads the unaffected value there too), so the manifest default of such an attribute is
+that unaffected value: all ones for ``primvars:usdgs:transmittance`` and the input's own
+prim-local SH for ``radiance:sphericalHarmonicsCoefficients`` (the pipeline authors SH in the
+prim's own frame). A moving prim (animated transform or positions) has the same unaffected
+values at every frame as long as its Gaussian count (for the transmittance) and its input SH
+(for the SH) do not change over time; where they do, a chunk missing the attribute is an error. Inside a
+chunk, every value is authored from the chunk's first frame and held values are re-authored
+before each change (``usd_gs.usd.output_author``), so whole-frame queries equal the single run.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from usd_gs.errors import UserError
+from usd_gs.farm.chunks import PREFIX, entry_files_ok, input_hash, read_sidecar
+from usd_gs.usd.output_author import SH_COEFFS, TRANSMITTANCE
+
+SH_DEGREE = "radiance:sphericalHarmonicsDegree"
+
+
+@dataclass
+class AssembleSummary:
+    output: str
+    topology: str
+    manifest: str
+    chunks: list  # chunk layer file names, frame order
+    frames: list
+    filled: int  # attributes given a manifest default (missing in some chunk)
+
+
+def collect_chunks(folder) -> list[dict]:
+    """Finished chunk entries of ``folder`` in frame order (each entry gets ``path``).
+
+    Raises ``UserError`` when there are none, when a chunk's files do not match its entry,
+    when chunks of different options or inputs are mixed, or when frame ranges overlap."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UserError(f"{folder}: no such chunk folder")
+    entries = []
+    for side in sorted(folder.glob(f"{PREFIX}*.json")):
+        e = read_sidecar(side)
+        if e is None:
+            raise UserError(f"{side}: not a usdgs chunk entry (unreadable or wrong format)")
+        if not entry_files_ok(e, folder):
+            raise UserError(f"{side}: chunk layer {e.get('layer')} or its probes are missing or were changed; "
+                            "re-run the chunk")
+        e["path"] = str(folder / e["layer"])
+        entries.append(e)
+    if not entries:
+        raise UserError(f"{folder}: holds no finished chunk ({PREFIX}*.json)")
+    groups = {(e["input"], e["input_hash"], e["options_hash"]) for e in entries}
+    if len(groups) > 1:
+        raise UserError(f"{folder}: chunks of {len(groups)} different runs (input, input bytes or options differ) "
+                        "are mixed; remove the stale ones or re-run with the same command")
+    entries.sort(key=lambda e: e["frames"][0])
+    for a, b in zip(entries, entries[1:], strict=False):
+        if b["frames"][0] <= a["frames"][-1]:
+            raise UserError(f"{folder}: chunks {a['layer']} (frames {a['frames'][0]:g}-{a['frames'][-1]:g}) and "
+                            f"{b['layer']} (frames {b['frames'][0]:g}-{b['frames'][-1]:g}) overlap")
+    return entries
+
+
+def _sampled_attributes(layers) -> dict:
+    """attribute path -> (type name, set of clip indices with time samples)."""
+    from pxr import Sdf
+
+    found: dict = {}
+    for k, layer in enumerate(layers):
+        paths = []
+        layer.Traverse(Sdf.Path.absoluteRootPath, lambda p, out=paths: out.append(p) if p.IsPropertyPath() else None)
+        for p in paths:
+            spec = layer.GetAttributeAtPath(p)
+            if spec and layer.GetNumTimeSamplesForPath(p):
+                entry = found.setdefault(p, [spec.typeName, set()])
+                entry[1].add(k)
+    return found
+
+
+def _unaffected_value(stage, attr_path, missing_in: str):
+    """The value the single run holds where nothing affected the attribute (module docstring)."""
+    from pxr import Usd, Vt
+
+    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, read_gaussian_prim
+
+    prim = stage.GetPrimAtPath(attr_path.GetPrimPath())
+    name = attr_path.name
+    why = f"{attr_path} has no samples in chunk {missing_in}"
+    if not prim or name not in (TRANSMITTANCE, SH_COEFFS):
+        raise UserError(f"{why} and no unaffected value is defined for it; re-run with a larger --chunk-size")
+    info = describe_gaussian_prim(prim, Usd.TimeCode.EarliestTime())
+    varying = [a for a in ("positions", "positionsh", SH_COEFFS, SH_COEFFS + "h")
+               if prim.HasAttribute(a) and prim.GetAttribute(a).GetNumTimeSamples() > 1]
+    counts = {len(prim.GetAttribute(a).Get(t) or []) for a in varying if a.startswith("positions")
+              for t in prim.GetAttribute(a).GetTimeSamples()}
+    if counts - {info.count} or (name == SH_COEFFS and any(a.startswith(SH_COEFFS) for a in varying)):
+        raise UserError(f"{why}, and the prim's Gaussian count or input SH change over time, so its unaffected "
+                        "value differs per frame: re-run with a larger --chunk-size or one chunk for this shot")
+    if name == TRANSMITTANCE:
+        return Vt.FloatArray.FromNumpy(np.ones(info.count, np.float32))
+    g = read_gaussian_prim(prim, Usd.TimeCode.EarliestTime(), world=False)
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(g.sh.astype(np.float32).reshape(-1, 3)))
+
+
+def _relative(target: Path, out_dir: Path) -> str:
+    from usd_gs.usd.output_layer import _relative_asset_path
+
+    return _relative_asset_path(Path(os.path.abspath(target)), out_dir)
+
+
+def _topology(topo_path: Path, layer_paths: list[str], input_stage) -> None:
+    """Write the topology layer (module docstring) atomically."""
+    from pxr import Sdf, UsdUtils
+
+    from usd_gs.io.atomic import atomic_output
+    from usd_gs.usd.gaussian_prim import file_format_args
+
+    _, args = file_format_args(topo_path)
+    with atomic_output(topo_path) as tmp:
+        tmp.unlink()
+        topo = Sdf.Layer.CreateNew(str(tmp))
+        if not UsdUtils.StitchClipsTopology(topo, layer_paths):
+            raise UserError(f"{topo_path}: USD could not stitch the chunk topology")
+        topo.subLayerPaths.clear()  # the chunks' input sublayer; the root sublayers the input itself
+        with Sdf.ChangeBlock():
+            for prim in input_stage.Traverse():
+                spec = topo.GetPrimAtPath(prim.GetPath())
+                if not spec or not prim.HasAttribute(SH_DEGREE):
+                    continue
+                spec.typeName = prim.GetTypeName()
+                deg = prim.GetAttribute(SH_DEGREE)
+                if not topo.GetAttributeAtPath(deg.GetPath()):
+                    a = Sdf.AttributeSpec(spec, SH_DEGREE, deg.GetTypeName(), Sdf.VariabilityUniform)
+                    a.default = deg.Get()
+                sh_spec = topo.GetAttributeAtPath(prim.GetPath().AppendProperty(SH_COEFFS))
+                sh = prim.GetAttribute(SH_COEFFS)
+                if sh_spec and sh:
+                    for key in ("interpolation", "elementSize"):
+                        if sh.HasMetadata(key):
+                            sh_spec.SetInfo(key, sh.GetMetadata(key))
+        topo.Save()
+
+
+def _manifest(man_path: Path, layers, names, input_stage) -> int:
+    """Write the clip manifest atomically; returns how many attributes got an unaffected default."""
+    from pxr import Sdf
+
+    from usd_gs.usd.gaussian_prim import save_stage_atomic
+
+    found = _sampled_attributes(layers)
+    man = Sdf.Layer.CreateAnonymous("manifest" + man_path.suffix)
+    filled = 0
+    with Sdf.ChangeBlock():
+        for path, (type_name, have) in sorted(found.items(), key=lambda kv: str(kv[0])):
+            prim_spec = Sdf.CreatePrimInLayer(man, path.GetPrimPath())
+            spec = Sdf.AttributeSpec(prim_spec, path.name, type_name)
+            if len(have) < len(layers):
+                missing = names[min(set(range(len(layers))) - have)]
+                spec.default = _unaffected_value(input_stage, path, missing)
+                filled += 1
+    save_stage_atomic(man, man_path)
+    return filled
+
+
+def assemble(folder, output, entries: list[dict] | None = None) -> AssembleSummary:
+    """Stitch the finished chunks of ``folder`` (or the given ``entries``, frame order) into
+    ``output``; see the module docstring. Checks that the input has not changed since."""
+    from pxr import Sdf, Usd, Vt
+
+    from usd_gs.usd.output_layer import OutputLayer
+    from usd_gs.usd.stage import check_usd_output_path, open_stage
+    from usd_gs.usd.gaussian_prim import save_stage_atomic
+
+    entries = entries if entries is not None else collect_chunks(folder)
+    out = Path(os.path.abspath(output))
+    check_usd_output_path(str(out))
+    input_path = entries[0]["input"]
+    if not os.path.isfile(input_path):
+        raise UserError(f"{input_path}: the chunks' input stage no longer exists")
+    input_stage = open_stage(input_path)
+    if input_hash(input_stage) != entries[0]["input_hash"]:
+        raise UserError(f"{input_path}: the input changed after the chunks in {folder} were computed; re-run them")
+    layer_paths = [e["path"] for e in entries]
+    layers = [Sdf.Layer.FindOrOpen(p) for p in layer_paths]
+    names = [Path(p).name for p in layer_paths]
+    topo_path = out.with_name(out.stem + ".topology.usdc")
+    man_path = out.with_name(out.stem + ".manifest.usdc")
+    _topology(topo_path, layer_paths, input_stage)
+    filled = _manifest(man_path, layers, names, input_stage)
+
+    roots = sorted({spec.path for layer in layers for spec in layer.rootPrims})
+    starts = [e["frames"][0] for e in entries]
+    times = sorted({t for e in entries for t in (e["frames"][0], e["frames"][-1])})
+    root = OutputLayer.create(input_path, out)
+    root.layer.subLayerPaths.insert(0, topo_path.as_posix())
+    with Sdf.ChangeBlock():
+        for path in roots:
+            spec = Sdf.CreatePrimInLayer(root.layer, path)
+            spec.SetInfo("clips", {"default": {
+                "assetPaths": Sdf.AssetPathArray([_relative(Path(p), out.parent) for p in layer_paths]),
+                "primPath": str(path),
+                "active": Vt.Vec2dArray([(float(s), float(k)) for k, s in enumerate(starts)]),
+                "times": Vt.Vec2dArray([(float(t), float(t)) for t in times]),
+                "manifestAssetPath": Sdf.AssetPath(_relative(man_path, out.parent)),
+            }})
+    exported = root.export_layer()
+    exported.subLayerPaths = [_relative(topo_path, out.parent) if s == topo_path.as_posix() else s
+                              for s in exported.subLayerPaths]
+    save_stage_atomic(exported, out)
+    check = Usd.Stage.Open(str(out))
+    if not check:
+        raise UserError(f"{out}: the stitched stage does not open")
+    frames = [f for e in entries for f in e["frames"]]
+    return AssembleSummary(str(out), str(topo_path), str(man_path), names, frames, filled)

@@ -1,0 +1,233 @@
+"""Parallel JIT warm-up: compile the main job's relighting kernels in a second process.
+
+numba compiles a kernel on its first call, in one thread, and ``usdgs process`` needs about
+forty of them (~26 s of single-threaded compilation on a cold cache against ~0.76 s per warm
+frame on the 2-core development machine). The kernels are cached on disk (``cache=True``), so a
+second process that calls them first fills the cache, and the main process then loads them
+instead of compiling. :func:`start` launches ``python -m usd_gs.pipeline.jit_warmup GROUP ...`` when the
+cache is cold. The main job compiles, in this order, light estimation (~4.5 s), the shadow maps'
+preparation, accumulation and refined sampling (~8 s), then the relighting (normals, probe
+render, fit and transfer, ~13 s; single-threaded, idle machine). The warm-up takes the
+:data:`BACKGROUND` group, the relighting, touches a marker file when it is done and exits; the
+main process compiles the rest itself and, before it first relights, waits for the marker
+(:func:`wait_for`) instead of compiling the same kernels a second time (a duplicate costs the
+whole compile, a wait only what is left of it). Measured on the 48-frame demo: the main
+process is done compiling after ~16 s, the marker appears at ~15 s. (An earlier design
+compiled every later kernel in the warm-up in reverse order: both processes then compiled the
+shadow kernels, 64-66 s cold.) The warm-up calls the same wrapper functions as the main job, so
+the kernels see the same argument types and the cache entries match
+(``tests/test_jit_warmup.py`` checks it).
+
+Nothing here changes a result: the warm-up writes only numba cache files, which numba
+replaces atomically, and a wait ends when the marker appears, the warm-up process ends, or
+after :data:`WAIT_LIMIT` seconds. ``USDGS_JIT_WARMUP=0`` disables it.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+#: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
+SENTINEL = ("numba_kernels.rasterize", "_blend")
+#: every group, in the order :func:`warm_up` compiles them
+GROUPS = ("refine", "relight", "shadows")
+#: the groups the background process compiles (the main job compiles the others itself)
+BACKGROUND = ("relight",)
+#: seconds the main process waits at most for one group
+WAIT_LIMIT = 120.0
+
+
+@dataclass
+class WarmUp:
+    """A running warm-up process and the folder where it marks each finished group."""
+
+    proc: subprocess.Popen
+    markers: Path
+    done: set = field(default_factory=set)  # groups seen finished
+
+    def wait(self, group: str) -> None:
+        """Block until ``group`` is compiled (its marker exists), the process has ended, or
+        :data:`WAIT_LIMIT` seconds have passed; returns at once for a group it does not compile
+        or has been seen finished."""
+        if group not in BACKGROUND or group in self.done:
+            return
+        t0 = time.perf_counter()
+        while not (self.markers / group).exists() and self.proc.poll() is None:
+            if time.perf_counter() - t0 > WAIT_LIMIT:
+                break
+            time.sleep(0.02)
+        self.done.add(group)
+
+
+_ACTIVE: list = [None]  # the warm-up of the run in progress in this process (start/stop)
+
+
+def cache_is_cold() -> bool:
+    """True if the numba cache holds no valid entry of the sentinel kernel (empty cache,
+    another ``NUMBA_CACHE_DIR``, or sources changed since it was written)."""
+    import importlib
+
+    mod = importlib.import_module(SENTINEL[0])
+    cache = getattr(getattr(mod, SENTINEL[1]), "_cache", None)
+    try:
+        return not cache._cache_file._load_index()
+    except Exception:  # noqa: BLE001 - numba internals: when unsure, do not start a process
+        return False
+
+
+def start() -> WarmUp | None:
+    """Launch the warm-up process for the :data:`BACKGROUND` groups if the cache is cold and
+    ``USDGS_JIT_WARMUP`` is not ``0``; returns it (pass it to :func:`stop`) or None."""
+    if os.environ.get("USDGS_JIT_WARMUP", "1") == "0" or not cache_is_cold():
+        return None
+    markers = Path(tempfile.mkdtemp(prefix="usdgs_warmup_"))
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0", USDGS_JIT_WARMUP_MARKERS=str(markers),
+               USDGS_JIT_WARMUP_PACKAGE=_package_dir())
+    # -P: no current directory on sys.path, so that a checkout's source tree does not shadow the
+    # installed package the main process runs (numba cache entries belong to one source file)
+    proc = subprocess.Popen([sys.executable, "-P", "-m", "usd_gs.pipeline.jit_warmup", *BACKGROUND], env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _ACTIVE[0] = WarmUp(proc, markers)
+    return _ACTIVE[0]
+
+
+def wait_for(group: str) -> None:
+    """Called by the main job before it first needs ``group``'s kernels: :meth:`WarmUp.wait` on
+    this process's running warm-up, nothing when there is none (warm cache)."""
+    if _ACTIVE[0] is not None:
+        _ACTIVE[0].wait(group)
+
+
+def stop(warm) -> None:
+    """End the warm-up process (it has nothing left to give once the main job is done) and
+    remove its markers; ``warm`` is a :class:`WarmUp`, a bare ``Popen`` or None."""
+    if warm is None:
+        return
+    proc = warm.proc if isinstance(warm, WarmUp) else warm
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    if isinstance(warm, WarmUp):
+        shutil.rmtree(warm.markers, ignore_errors=True)
+        if _ACTIVE[0] is warm:
+            _ACTIVE[0] = None
+
+
+def _package_dir() -> str:
+    """Folder of the ``usd_gs`` package this process imported."""
+    return str(Path(__file__).resolve().parents[1])
+
+
+def _mark(group: str) -> None:
+    folder = os.environ.get("USDGS_JIT_WARMUP_MARKERS")
+    if folder:
+        Path(folder, group).touch()
+
+
+def _tiny_scene():
+    from usd_gs.demo.synthetic import random_gaussians
+
+    avatar = random_gaussians(64, 3, seed=1)
+    avatar.positions[:] = avatar.positions * 0.05 + np.array([0.0, 1.0, 0.0], np.float32)
+    scene = random_gaussians(256, 3, seed=2)
+    scene.positions[:, 1] = 0.0
+    for g in (avatar, scene):  # SH read from USD arrive as read-only views (a numba type of their own)
+        g.sh.flags.writeable = False
+    return avatar, scene
+
+
+def _fake_atlas(occ_count: int):
+    """A tiny point-light atlas with contrasting voxels and one culling tile listing every
+    occluder: enough to reach the refinement and accumulation kernels without building one."""
+    from numba_kernels import dgsm_build
+
+    w, k = dgsm_build.TILE, 4
+    values = np.tile(np.array([1.0, 0.0, 1.0, 0.0], np.float32), (w * w, 1))
+    tiles = (np.array([0, occ_count], np.int64), np.arange(occ_count, dtype=np.int64), np.zeros(0, np.int64),
+             np.tile(np.array([0.0, 0.0, 1.0, -2.0]), (occ_count, 1)))
+    return dgsm_build.Atlas(w, k, 4.0, 0, k - 1, np.arange(w * w, dtype=np.int32), values,
+                            np.arange(w * w, dtype=np.int64), 0, 0, tiles)
+
+
+def warm_up(groups=GROUPS) -> None:
+    """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
+    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
+    ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
+    shared atlas, light combination). Marks each group when done (see :func:`start`)."""
+    from numba_kernels import dgsm_build, dgsm_sample
+    from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
+
+    from usd_gs.relight.avatar import relight_factors
+    from usd_gs.gaussians import GaussianSet
+    from usd_gs.usd.lux import ShotLight
+    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.pipeline.shot import ProcessOptions
+    from usd_gs.relight.parallax import ProbeBlend
+    from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
+    from usd_gs.shadows.dgsm import prepare_occluders
+    from usd_gs.shadows.shot import Receivers, receiver_points, shared_transmittance
+    from usd_gs.shadows.static_scene import StaticSceneAtlas
+
+    opts = ProcessOptions().check()
+    avatar, scene = _tiny_scene()
+    light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
+    occ, dir_dep = np.zeros((4, 16)), 0
+    atlas = _fake_atlas(len(occ))
+    if "refine" in groups:  # shadow-map sampling with exact refinement, on a hand-made atlas
+        pts = np.ascontiguousarray(light.position + np.array([[0.01, 0.02, 1.0]]) * np.linspace(0.5, 3.5, 16)[:, None])
+        dgsm_sample.lookup_point_refined(atlas, light.position, pts, occ, dir_dep, opts.dgsm.refine_contrast)
+        _mark("refine")
+    if "relight" in groups:  # normals, the probe render (the longest compile), probe fit and SH transfer
+        centre = alpha_weighted_centroid(avatar)
+        everything = GaussianSet.concatenate([scene, avatar], label="shot")
+        mask = np.ones(everything.count, bool)
+        mask[scene.count:] = False
+        n = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
+        normals = local_normals_to_world(avatar.orientations, normals_to_local(avatar.orientations, n))
+        scale, probe = relight_factors(avatar, everything, mask, centre, normals,
+                                       ProbeBlend.build(avatar.positions, opts.probe_points), opts)
+        scale_sh(avatar.sh, opts.relight_gamma * scale)
+        probe.to_latlong(*opts.probe_texture)
+        _mark("relight")
+    if "shadows" in groups:
+        out = np.ones((4, atlas.K), np.float32)
+        dgsm_build.accumulate_pixels(light.position, occ, dir_dep, atlas.pixels[:4], atlas.width, atlas.K,
+                                     atlas.t_max, 0, atlas.K - 1, atlas.tiles, True, opts.dgsm.bin_skip, out,
+                                     np.zeros(4, np.int64), np.zeros(4, np.int64))
+        centre_cfg = replace(opts.dgsm, sampling="center")
+        recv = Receivers.build([("/scene", scene)])
+        drecv = Receivers.build([("/avatar", avatar)])
+        part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
+        StaticSceneAtlas(scene, light.position, centre_cfg).transmittance(part[1])
+        parts = [receiver_points(avatar, recv, light, opts.dgsm, roi=opts.roi),
+                 receiver_points(avatar, drecv, light, opts.dgsm, exclude="/avatar", roi=opts.roi)]
+        (idx, val), _ = shared_transmittance(avatar, parts, light, opts.dgsm, prepare_occluders(avatar, opts.dgsm))
+        t = np.ones(scene.count)
+        t[idx] *= val
+        tp = combine_lights([t, t], light_shares([light, light], scene.positions))
+        scale_sh(scene.sh, attenuation_factor(tp.astype(np.float32), opts.direct_fraction))
+        _mark("shadows")
+
+
+if __name__ == "__main__":
+    unknown = set(sys.argv[1:]) - set(GROUPS)
+    if unknown:
+        raise SystemExit(f"usd_gs.pipeline.jit_warmup: unknown group(s) {sorted(unknown)}; groups are {GROUPS}")
+    wanted = os.environ.get("USDGS_JIT_WARMUP_PACKAGE")
+    if wanted and wanted != _package_dir():
+        # another copy of the package than the main process's: its cache entries would not be used
+        raise SystemExit(f"usd_gs.pipeline.jit_warmup: this is {_package_dir()}, the main process runs {wanted}")
+    warm_up(tuple(sys.argv[1:]) or GROUPS)

@@ -1,0 +1,241 @@
+"""Shadows of one frame: every caster prim's DGSM per light, sampled on every receiver.
+
+Optical depth is additive over Gaussians, so the transmittance through several caster prims
+is the product of each prim's transmittance: ``T = prod_Q T_Q``. Building one DGSM per
+caster prim (instead of one for all casters) costs the same (work grows with occluders
+times the pixels they cover) and gives two things for free:
+
+- a receiver never shadows itself: receivers of prim ``P`` use ``prod_{Q != P} T_Q``
+  (avatar on avatar, object on avatar; not an avatar on itself);
+- each caster gets its own receiver ROI, so two avatars far apart do not need one huge ROI.
+
+Receiver ROI (``roi='cone'``, the default): the receivers whose ray from the light can pass
+through the caster's bounding sphere (centre and radius of its ``k_sigma`` extent box):
+inside the cone from a point light around that sphere and not nearer to the light than
+the sphere, or inside the cylinder along a directional light. This is conservative (no
+receiver that the caster can shadow is left out) and, unlike the paper's fixed box of
+radius R around the avatar (``roi='box'``), does not cut off the long shadows that a lamp
+close to an avatar throws across a room.
+
+Static casters (the scene) shadow the dynamic receivers (avatars, objects). Their DGSM
+uses no ROI box (the receivers are the avatars themselves, a small set), and every sample
+point is moved ``bias`` metres toward the light first so that the scene Gaussians a foot
+stands on do not shadow it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from usd_gs.gaussians import GaussianSet
+from usd_gs.shadows.dgsm import DGSM, DGSMConfig, footprint_samples, prepare_occluders, roi_indices, sample_dgsm
+
+
+@dataclass
+class Receivers:
+    """All receiving Gaussians of a frame, concatenated, with each prim's index range."""
+
+    gaussians: GaussianSet
+    ranges: dict[str, tuple[int, int]]
+
+    @classmethod
+    def build(cls, parts: list[tuple[str, GaussianSet]]) -> Receivers:
+        ranges, start = {}, 0
+        for path, g in parts:
+            ranges[path] = (start, start + g.count)
+            start += g.count
+        sets = [g for _, g in parts]
+        merged = GaussianSet.concatenate(sets, label="receivers") if sets else GaussianSet.empty()
+        return cls(merged, ranges)
+
+
+def _bounding_sphere(ext: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of the sphere around a (2, 3) box."""
+    ext = np.asarray(ext, np.float64)
+    return 0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0]))
+
+
+def _beam(centres: np.ndarray, c: np.ndarray, r: float, light) -> tuple[np.ndarray, np.ndarray]:
+    """Geometry of points against the light's beam through the sphere (c, r): a cone from a
+    point light (half-angle asin(r / |c - light|)), a cylinder along a directional light.
+
+    Returns ``(gap, depth)`` per point: ``gap`` the distance from the point to the beam
+    (<= 0 inside), ``depth`` how far past the sphere's near side the point lies along the
+    light (>= 0 beyond the near side). A light inside the sphere gives gap -inf (everything
+    is in its beam)."""
+    x = np.asarray(centres, np.float64)
+    if light.kind == "directional":
+        d = np.asarray(light.direction, np.float64)
+        d = d / np.linalg.norm(d)
+        v = x - c
+        along = v @ d
+        perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
+        return perp - r, along + r
+    lp = np.asarray(light.position, np.float64)
+    dc = float(np.linalg.norm(c - lp))
+    v = x - lp
+    dist = np.sqrt(np.einsum("ij,ij->i", v, v))  # (faster than np.linalg.norm on (N, 3))
+    if dc <= r:
+        return np.full(x.shape[0], -np.inf), dist
+    along = v @ ((c - lp) / dc)
+    perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
+    sin_h = r / dc
+    cos_h = np.sqrt(1.0 - sin_h * sin_h)
+    gap = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
+    return gap, dist - (dc - r)
+
+
+def occluder_sphere(occluders: GaussianSet, k_sigma: float = 3.0) -> tuple[np.ndarray, float]:
+    """Bounding sphere (centre, radius) of the occluders' ``k_sigma`` extent; compute it once per
+    frame and pass it to the functions below instead of recomputing it per light."""
+    return _bounding_sphere(occluders.extent(k_sigma))
+
+
+def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_sigma: float = 3.0,
+                        sphere=None) -> np.ndarray:
+    """Receivers (indices into ``positions`` (N, 3)) that ``occluders`` can shadow from ``light``:
+    inside the beam through the occluders' bounding sphere and not before its near side."""
+    c, r = sphere if sphere is not None else occluder_sphere(occluders, k_sigma)
+    gap, depth = _beam(positions, c, r * (1.0 + 1e-6) + 1e-9, light)
+    return np.flatnonzero((gap <= 0.0) & (depth >= 0.0))
+
+
+def toward_mask(centres: np.ndarray, reach: np.ndarray, receiver_positions: np.ndarray, light) -> np.ndarray:
+    """(N,) bool: spheres (``centres`` (N, 3), radii ``reach`` (N,)) that can lie between
+    ``light`` and the receivers: they meet the beam through the receivers' bounding sphere
+    and do not lie beyond its far side."""
+    x = receiver_positions.astype(np.float64)
+    c, r = _bounding_sphere(np.stack([x.min(axis=0), x.max(axis=0)]))
+    gap, depth = _beam(centres, c, r, light)
+    return (gap <= reach) & (depth <= 2.0 * r + reach)
+
+
+def occluders_toward(occluders: GaussianSet, receiver_positions: np.ndarray, light, k_sigma: float = 3.0,
+                     candidates: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the ``occluders`` (among ``candidates``, default all) that can lie between
+    ``light`` and the receivers: an occluder matters only if its ``k_sigma`` sphere meets
+    :func:`toward_mask`'s region. Conservative: dropping the others changes no receiver's
+    transmittance."""
+    if occluders.count == 0 or receiver_positions.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    cand = np.arange(occluders.count, dtype=np.int64) if candidates is None else np.asarray(candidates, np.int64)
+    reach = k_sigma * occluders.scales[cand].astype(np.float64).max(axis=1)
+    return cand[toward_mask(occluders.positions[cand], reach, receiver_positions, light)]
+
+
+def _build(occluders: GaussianSet, prepared, light, points: np.ndarray, cfg: DGSMConfig):
+    from numba_kernels import dgsm_build, dgsm_directional
+
+    if light.kind == "directional":
+        d = np.asarray(light.direction, np.float64)
+        return d, dgsm_directional.build_directional(d / np.linalg.norm(d), *prepared, points, cfg.atlas_size,
+                                                    max(cfg.K, 2), cfg.k_sigma, cfg.use_tile_culling, cfg.bin_skip)
+    pos = np.asarray(light.position, np.float64)
+    return pos, dgsm_build.build_point(pos, *prepared, points, cfg.atlas_size, cfg.K, cfg.t_max, cfg.k_sigma,
+                                       cfg.use_roi, cfg.use_tile_culling, cfg.bin_skip)
+
+
+def receiver_points(occluders: GaussianSet, receivers: Receivers, light, cfg: DGSMConfig,
+                    exclude: str | None = None, roi: str = "cone", bias: float = 0.0,
+                    candidates: np.ndarray | None = None, sphere=None):
+    """The receivers ``occluders`` can shadow and their footprint sample points:
+    ``(idx (M,) int64 receiver indices, points (M*n, 3) float64, weights (n,))``, or None when
+    there are none. Arguments as :func:`caster_transmittance`."""
+    g = receivers.gaussians
+    if occluders.count == 0 or g.count == 0:
+        return None
+    cand = np.arange(g.count, dtype=np.int64) if candidates is None else np.asarray(candidates, np.int64)
+    if exclude is not None and exclude in receivers.ranges:
+        a, b = receivers.ranges[exclude]
+        cand = cand[(cand < a) | (cand >= b)]
+    if cand.size == 0:
+        return None
+    pos = g.positions[cand]
+    if roi == "all" or not cfg.use_roi:
+        idx = cand
+    elif roi == "box":
+        idx = cand[roi_indices(occluders, pos, cfg)]
+    else:
+        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma, sphere)]
+    if idx.size == 0:
+        return None
+    pts, w = footprint_samples(g, idx, cfg)
+    if bias > 0:
+        if light.kind == "directional":
+            toward = -np.asarray(light.direction, np.float64)
+            toward = np.broadcast_to(toward / np.linalg.norm(toward), pts.shape)
+        else:
+            toward = np.asarray(light.position, np.float64) - pts
+            toward = toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-12)
+        pts = pts + bias * toward
+    return idx, pts, w
+
+
+def shared_transmittance(occluders: GaussianSet, parts: list, light, cfg: DGSMConfig,
+                         prepared=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """One DGSM of ``occluders`` for several receiver sets: ``parts`` are
+    :func:`receiver_points` results (None entries allowed); the atlas covers the union of
+    their voxels (one culling pass and one accumulation instead of one per set) and each part
+    gets ``(idx, values)`` back as :func:`caster_transmittance` gives it (empty for None)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0))
+    live = [p for p in parts if p is not None]
+    if not live:
+        return [empty for _ in parts]
+    prepared = prepared if prepared is not None else prepare_occluders(occluders, cfg)
+    pts = np.ascontiguousarray(np.concatenate([p[1] for p in live]) if len(live) > 1 else live[0][1])
+    key, atlas = _build(occluders, prepared, light, pts, cfg)
+    out, start = [], 0
+    for p in parts:
+        if p is None:
+            out.append(empty)
+            continue
+        idx, ppts, w = p
+        sub = pts[start:start + len(ppts)]
+        start += len(ppts)
+        out.append((idx, sample_dgsm(DGSM(key, atlas, idx, sub, w, cfg, prepared=prepared))))
+    return out
+
+
+def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cfg: DGSMConfig,
+                         exclude: str | None = None, roi: str = "cone", bias: float = 0.0,
+                         prepared=None, candidates: np.ndarray | None = None,
+                         sphere=None) -> tuple[np.ndarray, np.ndarray]:
+    """Transmittance through ``occluders`` of the receivers it can shadow, sparse:
+    ``(idx (M,) int64 receiver indices, values (M,) float64)``; every other receiver has 1.
+
+    ``candidates``: receiver indices to consider (None: all), e.g. the Gaussians of the
+    bricks whose bounds meet the caster's shadow. ``exclude``: a receiver prim path whose
+    Gaussians are not sampled (the caster itself). ``roi``: 'cone' (module docstring),
+    'box' (the paper's box around the occluders) or 'all' (every candidate; also what
+    ``cfg.use_roi = False`` gives). ``bias``: metres to move sample points toward the light
+    (against self-contact shadowing). ``sphere``: :func:`occluder_sphere` if already known.
+    """
+    part = receiver_points(occluders, receivers, light, cfg, exclude, roi, bias, candidates, sphere)
+    return shared_transmittance(occluders, [part], light, cfg, prepared)[0]
+
+
+def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[np.ndarray, float]]:
+    """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent."""
+    out = {}
+    g = receivers.gaussians
+    for path, (a, b) in receivers.ranges.items():
+        if b <= a:
+            continue
+        ext = g.subset(slice(a, b)).extent(k_sigma).astype(np.float64)
+        out[path] = (0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0])))
+    return out
+
+
+def prims_in_shadow(spheres: dict, occluders: GaussianSet, light, k_sigma: float = 3.0, sphere=None) -> list[str]:
+    """Receiver prims whose bounding sphere can meet the shadow of ``occluders`` (conservative)."""
+    if not spheres or occluders.count == 0:
+        return []
+    names = list(spheres)
+    centres = np.array([spheres[n][0] for n in names])
+    radii = np.array([spheres[n][1] for n in names])
+    c, r = sphere if sphere is not None else occluder_sphere(occluders, k_sigma)
+    gap, depth = _beam(centres, c, r, light)
+    hit = (gap <= radii) & (depth >= -radii)
+    return [n for n, h in zip(names, hit, strict=True) if h]

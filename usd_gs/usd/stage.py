@@ -1,0 +1,89 @@
+"""Opening stages and resolving user-given prim paths and time codes, with user errors
+instead of USD exceptions. No numba here (it is on the start-up path of every command)."""
+
+from __future__ import annotations
+
+import os
+
+from usd_gs.errors import InputFormatError, UserError
+
+USD_EXTENSIONS = (".usd", ".usda", ".usdc")
+
+
+def open_stage(path: str):
+    """Open a USD stage read-only in intent (nothing here ever saves it).
+
+    Raises ``InputFormatError`` naming the file when it is missing or unreadable.
+    """
+    from pxr import Tf, Usd
+
+    if not os.path.exists(path):
+        raise InputFormatError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise InputFormatError(f"{path}: is a directory, not a USD stage")
+    try:
+        stage = Usd.Stage.Open(path)
+    except Tf.ErrorException as exc:
+        msg = " ".join(str(exc).split())
+        raise InputFormatError(f"{path}: cannot be opened as a USD stage ({msg[:300]})") from None
+    if stage is None:
+        raise InputFormatError(f"{path}: cannot be opened as a USD stage")
+    return stage
+
+
+def check_usd_output_path(path: str) -> str:
+    """Return the lower-case extension of a USD output path, or raise ``UserError``."""
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in USD_EXTENSIONS:
+        raise UserError(f"{path}: output must end in {', '.join(USD_EXTENSIONS)} (got '{ext or 'no extension'}')")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UserError(f"{path}: output directory {parent} does not exist")
+    return ext
+
+
+def prim_path(text: str):
+    """Parse an absolute prim path given on the command line (``Sdf.Path``)."""
+    from pxr import Sdf
+
+    if not text or not Sdf.Path.IsValidPathString(text):
+        raise UserError(f"'{text}' is not a valid USD prim path")
+    p = Sdf.Path(text)
+    if not p.IsAbsolutePath() or not p.IsPrimPath() or p == Sdf.Path.absoluteRootPath:
+        raise UserError(f"'{text}' is not an absolute prim path such as /World/Gaussians")
+    return p
+
+
+def gaussian_prim(stage, path_text: str, stage_path: str):
+    """The ``ParticleField3DGaussianSplat`` prim at ``path_text`` or a ``UserError``."""
+    from usd_gs.usd.gaussian_prim import find_gaussian_prims
+
+    p = prim_path(path_text)
+    prim = stage.GetPrimAtPath(p)
+    if not prim or not prim.IsValid():
+        found = ", ".join(str(x.GetPath()) for x in find_gaussian_prims(stage)[:10]) or "none"
+        raise UserError(f"{stage_path}: no prim at {p} (Gaussian prims in the stage: {found})")
+    if prim.GetTypeName() != "ParticleField3DGaussianSplat":
+        raise UserError(f"{stage_path}: prim {p} is a '{prim.GetTypeName() or 'typeless'}' prim, "
+                        "not a ParticleField3DGaussianSplat")
+    return prim
+
+
+def time_code(text: str | None):
+    """'default' -> Default time; ``None``/'earliest' -> EarliestTime; else a float time code.
+
+    EarliestTime is the default because it gives the default value of unanimated
+    attributes and the first sample of animated ones (Default time ignores samples)."""
+    from pxr import Usd
+
+    if text is not None and text.lower() == "default":
+        return Usd.TimeCode.Default()
+    if text is None or text.lower() == "earliest":
+        return Usd.TimeCode.EarliestTime()
+    try:
+        value = float(text)
+    except ValueError:
+        raise UserError(f"--time '{text}' is not a number, 'default' or 'earliest'") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise UserError(f"--time '{text}' must be finite")
+    return Usd.TimeCode(value)
