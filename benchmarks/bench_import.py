@@ -71,7 +71,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from usd_gs.io.ply import write_ply
-    from usd_gs.demo.synthetic import random_gaussians
+    from usd_gs.synthetic import random_gaussians
 
     os.makedirs(args.workdir, exist_ok=True)
     ply = os.path.join(args.workdir, f"random_{args.n}_sh{args.degree}.ply")

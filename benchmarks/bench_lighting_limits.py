@@ -109,7 +109,7 @@ def demo_limits() -> None:
     from usd_gs.cli.process import is_missing_demo, make_missing_demo
     from usd_gs.evaluation.colorimetry import luminance
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.gaussians import alpha_weighted_centroid
     from usd_gs.evaluation.lighting_metrics import (
         PAA_MIN_RANK,
         fit_factorization,

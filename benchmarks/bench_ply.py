@@ -5,7 +5,7 @@ Usage (from the repository root)::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_ply.py [PATH] [--n 1000000] [--degree 3] [--repeat 3]
 
 If PATH (default: a file in a temporary directory) does not exist, a random set of
-``--n`` Gaussians of SH degree ``--degree`` is generated (``usd_gs.demo.synthetic``) and
+``--n`` Gaussians of SH degree ``--degree`` is generated (``usd_gs.synthetic``) and
 written there. ``read_ply`` and ``write_ply`` are then timed, each in a fresh Python
 process so that the peak RSS printed (``resource.getrusage``) is that of a process doing
 only the import (interpreter and numpy included), resp. a read followed by a write.
@@ -87,7 +87,7 @@ def main(argv=None) -> None:
     try:
         if not os.path.exists(path):
             from usd_gs.io.ply import write_ply
-            from usd_gs.demo.synthetic import random_gaussians
+            from usd_gs.synthetic import random_gaussians
 
             t = time.perf_counter()
             g = random_gaussians(args.n, args.degree, args.seed)

@@ -5,7 +5,7 @@ Prints, side by side:
   (numba_kernels/rasterize_reference.py) on small scenes (64x48, a few hundred Gaussians);
 - wall (and process CPU) time of six 64x64 cube faces and of one 960x540 view of
   1,000,000-Gaussian scenes: a room-like scene (walls + furniture) and
-  ``usd_gs.demo.synthetic.random_gaussians`` (issue targets: <= 0.5 s and <= 2 s), plus the real
+  ``usd_gs.synthetic.random_gaussians`` (issue targets: <= 0.5 s and <= 2 s), plus the real
   biker.ply capture (152,746 splats) when ../shared/data is present; after a warm-up call
   (numba compile and cache load excluded), best of ``--repeats``.
 
@@ -170,7 +170,7 @@ def main():
 
     from numba_kernels.rasterize_reference import render_reference
     from usd_gs.render.rasterize import render
-    from usd_gs.demo.synthetic import random_gaussians
+    from usd_gs.synthetic import random_gaussians
 
     print(f"numba threads: {numba.get_num_threads()}, load average: {os.getloadavg()[0]:.2f}")
     print("== fast path vs brute-force float64 reference (64x48) ==")

@@ -6,7 +6,7 @@ import pytest
 from usd_gs.usd.bricks import brick_indices
 from usd_gs.cli import main
 from usd_gs.errors import UserError
-from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.synthetic import random_gaussians
 
 
 def test_bricks_partition_with_bounded_sizes():

@@ -47,7 +47,7 @@ def test_warm_up_types_match_the_main_job(quick_demo, tmp_path):
 
 def test_starts_only_on_a_cold_cache(tmp_path, monkeypatch):
     from usd_gs.render.rasterize import render_cube_faces
-    from usd_gs.demo.synthetic import random_gaussians
+    from usd_gs.synthetic import random_gaussians
 
     render_cube_faces(random_gaussians(8, 0), (0.0, 0.0, 0.0), 8)  # compiles (and caches) the sentinel kernel
     assert not jit_warmup.cache_is_cold()

@@ -157,7 +157,7 @@ def test_lighting_consistency_for_stage(tmp_path):
     that sublayers the input; the original colours come from the input layer."""
     from pxr import Sdf, Usd, Vt
 
-    from usd_gs.evaluation.lighting_metrics import lighting_consistency_for_stage
+    from usd_gs.evaluation.lighting_stage import lighting_consistency_for_stage
     from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS
     from usd_gs.usd.schema import apply_role
     from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim

@@ -11,7 +11,7 @@ import pytest
 from usd_gs.errors import GaussianDataError, InputFormatError
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.ply import OPACITY_EPS, read_ply, write_ply
-from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.synthetic import random_gaussians
 
 SPLATS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "splats"
 INRIA_ORDER_HEAD = ["x", "y", "z"]

@@ -272,7 +272,7 @@ def test_a_static_avatar_is_relit_and_casts(tmp_path):
     from pxr import Usd
 
     from usd_gs.cli import main
-    from usd_gs.demo.synthetic import random_gaussians
+    from usd_gs.synthetic import random_gaussians
     from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
 
     room = make_emitter_test_scene(spacing=0.2).gaussians

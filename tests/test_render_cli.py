@@ -21,7 +21,7 @@ from usd_gs.render.preview import (
 )
 from usd_gs.render.rasterize import render
 from usd_gs.usd.stage import open_stage
-from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim
 
 W = 160

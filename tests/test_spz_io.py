@@ -14,7 +14,7 @@ from usd_gs import sh3dgs
 from usd_gs.errors import InputFormatError
 from usd_gs.io.ply import read_ply
 from usd_gs.io.spz import _RDF_SH_SIGN, read_spz, write_spz
-from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.synthetic import random_gaussians
 
 SPLATS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "splats"
 MAGIC = 0x5053474E

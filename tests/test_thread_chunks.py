@@ -36,7 +36,7 @@ def test_errors_in_a_range_reach_the_caller():
 def test_rasteriser_output_does_not_depend_on_the_thread_count():
     """The converted kernels write disjoint outputs: 1 and 2 threads give identical images."""
     from usd_gs.render.rasterize import render_cube_faces
-    from usd_gs.demo.synthetic import random_gaussians
+    from usd_gs.synthetic import random_gaussians
 
     g = random_gaussians(3000, 3, seed=4)
     old = numba.get_num_threads()

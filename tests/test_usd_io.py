@@ -13,7 +13,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError
 from usd_gs.gaussians import GaussianSet
-from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.gaussian_prim import (
     PLY_PREFIX,
     RAW_LOG_SCALES,

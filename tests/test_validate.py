@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from usd_gs.demo.synthetic import random_gaussians
+from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.gaussian_prim import SH_COEFFS, SH_DEGREE, new_stage, write_gaussian_prim
 from usd_gs.usd.validate import Problem, validate_prim, validate_stage
 

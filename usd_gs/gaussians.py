@@ -30,6 +30,38 @@ import numpy as np
 from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, first_bad_index
 
+#: opacities are clamped to [OPACITY_EPS, 1 - OPACITY_EPS] before the logit when no raw
+#: logit is available, so that 0 and 1 give finite logits (about -16.1 and +16.1).
+OPACITY_EPS = 1e-7
+_TINY32 = float(np.finfo(np.float32).tiny)
+
+
+# --------------------------------------------------------------------------- activations
+def scales_from_log(log_scales: np.ndarray) -> np.ndarray:
+    """Linear sigma ``exp(log_scales)`` computed in float64, returned as float32.
+
+    Values below the float32 normal range become ``finfo(float32).tiny`` so that every
+    scale stays > 0; the caller must reject values above ``log(float32 max)``.
+    """
+    s = np.exp(np.asarray(log_scales, dtype=np.float64))
+    np.maximum(s, _TINY32, out=s)
+    return s.astype(np.float32)
+
+
+def opacities_from_logit(logits: np.ndarray) -> np.ndarray:
+    """Stable sigmoid in float64, returned as float32; ``-inf``/``+inf`` give 0/1 exactly."""
+    x = np.asarray(logits, dtype=np.float64)
+    e = np.exp(-np.abs(x))
+    out = np.where(x >= 0, 1.0 / (1.0 + e), e / (1.0 + e))
+    return out.astype(np.float32)
+
+
+def logit_from_opacities(opacities: np.ndarray) -> np.ndarray:
+    """``log(p / (1 - p))`` in float64 after clamping ``p`` to [OPACITY_EPS, 1 - OPACITY_EPS]."""
+    p = np.clip(np.asarray(opacities, dtype=np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
+    return (np.log(p) - np.log1p(-p)).astype(np.float32)
+
+
 
 def _as_f32(name: str, a, shape_tail: tuple, label: str) -> np.ndarray:
     arr = np.ascontiguousarray(np.asarray(a), dtype=np.float32)
@@ -360,3 +392,16 @@ def matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     return q
+
+
+def alpha_weighted_centroid(gaussians: GaussianSet) -> np.ndarray:
+    """``sum_i a_i p_i / sum_i a_i`` in float64 (plain mean if every opacity is 0). Raises on an empty set."""
+    if gaussians.count == 0:
+        raise GaussianDataError(f"{gaussians.label}: cannot take the centroid of an empty Gaussian set")
+    a = gaussians.opacities.astype(np.float64)
+    p = gaussians.positions.astype(np.float64)
+    w = a.sum()
+    c = (a @ p) / w if w > 0 else p.mean(axis=0)
+    if not np.all(np.isfinite(c)):
+        raise GaussianDataError(f"{gaussians.label}: 'positions'/'opacities' give a non-finite centroid")
+    return c

@@ -17,25 +17,23 @@ import sys
 import time
 from pathlib import Path
 
-from usd_gs.errors import UserError
-
 QUICK_FRAMES = "1,5"
 FULL_FRAMES = "1,13,25,37"
 
 
 def _prepare_demo(folder: Path, quick: bool, frames: str, log) -> str:
-    from usd_gs.cli import main as cli_main
+    """Generate the (quick) demo shot under ``folder`` and process it on ``frames``; the processed stage's path."""
+    from usd_gs.demo.stage import QUICK, DemoOptions, make_demo
+    from usd_gs.pipeline.options import ProcessOptions
+    from usd_gs.pipeline.shot import ShotProcessor
 
     root = folder / ("quick" if quick else "demo") / "demo.usda"
     out = root.with_name("demo.lit.usdc")
-    argv = ["demo", "make", "-o", str(root), "-q"] + (["--quick"] if quick else [])
     t = time.perf_counter()
-    if cli_main(argv) != 0:
-        raise UserError(f"usdgs bench: 'usdgs {' '.join(argv)}' failed")
+    make_demo(str(root), QUICK if quick else DemoOptions(), None, log=None)
     log(f"made {root} in {time.perf_counter() - t:.1f} s")
     t = time.perf_counter()
-    if cli_main(["process", str(root), "-o", str(out), "--frames", frames, "-q"]) != 0:
-        raise UserError(f"usdgs bench: 'usdgs process {root}' failed")
+    ShotProcessor(str(root), str(out), ProcessOptions(frames=frames)).run(progress=False)
     log(f"processed {out} (frames {frames}) in {time.perf_counter() - t:.1f} s")
     return str(out)
 

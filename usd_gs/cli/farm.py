@@ -8,14 +8,8 @@ import json
 import math
 import sys
 
+from usd_gs.cli._args import add_role_options, print_lights, role_paths
 from usd_gs.errors import UserError
-
-
-def _print_lights(lights) -> None:
-    print(f"lights ({len(lights)}):")
-    for lt in lights:
-        print(f"  {lt.name}: {lt.kind} at ({lt.position[0]:.2f}, {lt.position[1]:.2f}, {lt.position[2]:.2f}), "
-              f"intensity {lt.intensity:.3g}" + ("" if lt.score is None else f", score {lt.score:.3g}"))
 
 
 def process_chunked(args, out: str, opts) -> int:
@@ -47,7 +41,7 @@ def process_chunked(args, out: str, opts) -> int:
     elif not args.quiet:
         c = d["chunks"]
         if summary.lights is not None:
-            _print_lights(summary.lights)
+            print_lights(summary.lights)
         fps = d["frames_per_second"]
         print(f"{d['frames']['count']} frame(s) in {c['total']} chunk(s) on {summary.backend}: "
               f"{len(c['computed'])} computed, {len(c['skipped'])} already finished"
@@ -59,14 +53,14 @@ def process_chunked(args, out: str, opts) -> int:
 
 def cmd_lights(args) -> int:
     from usd_gs.farm.run import SHOT_FIRST_FRAME
+    from usd_gs.pipeline.options import ProcessOptions
+    from usd_gs.pipeline.shot import ShotProcessor
     from usd_gs.usd.lux import LIGHTS_ROOT, write_estimated_lights
     from usd_gs.usd.output_layer import OutputLayer
-    from usd_gs.pipeline.shot import ProcessOptions, ShotProcessor
     from usd_gs.usd.stage import check_usd_output_path
 
     check_usd_output_path(args.output)
-    opts = ProcessOptions(frames=args.frames, lights=args.lights or "auto", scene_paths=tuple(args.scene or ()),
-                          avatar_paths=tuple(args.avatar or ()), object_paths=tuple(args.object or ()))
+    opts = ProcessOptions(frames=args.frames, lights=args.lights or "auto", **role_paths(args))
     proc = ShotProcessor(args.stage, args.output, opts)
     lights = proc.shot_lights()
     if lights is None:
@@ -79,7 +73,7 @@ def cmd_lights(args) -> int:
         # the shot's first frame: chunk tasks anchor the avatars' normals there (usd_gs.farm.run)
         out.stage.GetPrimAtPath(LIGHTS_ROOT).SetCustomDataByKey(SHOT_FIRST_FRAME, float(proc.frames[0]))
     if not args.quiet:
-        _print_lights(lights)
+        print_lights(lights)
         print(f"wrote {args.output} (sublayers {args.stage}); run the chunks on it with --lights stage")
     return 0
 
@@ -95,8 +89,6 @@ def cmd_assemble(args) -> int:
 
 
 def register_lights(sub, formatter):
-    from usd_gs.cli.process import add_role_options
-
     p = sub.add_parser(
         "lights", formatter_class=formatter, help="estimate a shot's lights once (the serial step of a farm run)",
         description="Estimate the shot's dominant lights once over the frame range (as usdgs process does) and "

@@ -35,9 +35,9 @@ def default_prim_path(input_path: str) -> str:
 
 # ----------------------------------------------------------------------------- import
 def cmd_import(args) -> int:
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
     from usd_gs.usd.schema import apply_role
     from usd_gs.usd.stage import check_usd_output_path, prim_path
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
 
     check_usd_output_path(args.output)
     path = prim_path(args.prim or default_prim_path(args.input))
@@ -95,8 +95,8 @@ def register_import(sub, formatter):
 # ----------------------------------------------------------------------------- export
 def cmd_export(args) -> int:
     from usd_gs.io.ply import write_ply
-    from usd_gs.usd.stage import gaussian_prim, open_stage, time_code
     from usd_gs.usd.gaussian_prim import read_gaussian_prim
+    from usd_gs.usd.stage import gaussian_prim, open_stage, time_code
 
     if os.path.splitext(args.output)[1].lower() != ".ply":
         raise UserError(f"{args.output}: output must be a .ply file")

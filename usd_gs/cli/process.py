@@ -6,57 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from usd_gs.errors import UserError
-
-
-def _load_config(path: str) -> dict:
-    """Options from a JSON file: keys are the long option names with '_' (e.g. direct_fraction,
-    atlas_size); command-line options given explicitly win."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise UserError(f"--config {path}: no such file") from None
-    except json.JSONDecodeError as exc:
-        raise UserError(f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(data, dict):
-        raise UserError(f"--config {path}: must hold a JSON object")
-    return data
-
-
-DGSM_KEYS = ("atlas_size", "K", "k_sigma", "roi_radius", "kappa", "mapping", "sampling", "n_samples", "seed",
-             "use_roi", "use_tile_culling", "refine_contrast")
-PROCESS_KEYS = ("frames", "lights", "lights_per_frame", "direct_fraction", "probe_size", "probe_degree",
-                "transfer_degree", "probe_points", "probe_supersample", "relight_q", "relight_gamma", "relight_t_max",
-                "contact_bias", "roi", "emitter_radius")
-
-
-def build_options(args):
-    from usd_gs.pipeline.shot import ProcessOptions
-    from usd_gs.shadows.dgsm import DGSMConfig
-
-    cfg = _load_config(args.config) if args.config else {}
-    unknown = set(cfg) - set(DGSM_KEYS) - set(PROCESS_KEYS)
-    if unknown:
-        raise UserError(f"--config {args.config}: unknown option(s) {', '.join(sorted(unknown))}")
-    dgsm = DGSMConfig(**{k: cfg[k] for k in DGSM_KEYS if k in cfg})
-    for k in ("atlas_size", "n_samples", "sampling", "seed"):
-        v = getattr(args, k, None)
-        if v is not None:
-            setattr(dgsm, k, v)
-    if args.no_roi:
-        dgsm.use_roi = False
-    if args.no_tile_culling:
-        dgsm.use_tile_culling = False
-    kw = {k: cfg[k] for k in PROCESS_KEYS if k in cfg}
-    for k in ("frames", "lights", "direct_fraction", "probe_points", "transfer_degree", "probe_supersample"):
-        v = getattr(args, k, None)
-        if v is not None:
-            kw[k] = v
-    if args.lights_per_frame:
-        kw["lights_per_frame"] = True
-    return ProcessOptions(scene_paths=tuple(args.scene or ()), avatar_paths=tuple(args.avatar or ()),
-                          object_paths=tuple(args.object or ()), dgsm=dgsm, **kw)
+from usd_gs.cli._args import add_role_options, build_options, print_lights
 
 
 def is_missing_demo(path) -> bool:
@@ -103,12 +53,7 @@ def cmd_process(args) -> int:
         return 0
     d = summary.as_dict()
     print(role_table(summary.roles, proc.counts))
-    print(f"lights ({len(summary.lights)}):")
-    for lt in summary.lights:
-        where = (f"at ({lt.position[0]:.2f}, {lt.position[1]:.2f}, {lt.position[2]:.2f})" if lt.kind == "point"
-                 else f"along ({lt.direction[0]:.2f}, {lt.direction[1]:.2f}, {lt.direction[2]:.2f})")
-        score = "" if lt.score is None else f", score {lt.score:.3g}"
-        print(f"  {lt.name}: {lt.kind} {where}, intensity {lt.intensity:.3g}{score} [{lt.source}]")
+    print_lights(summary.lights)
     for w in summary.warnings:
         print(f"warning: {w}")
     print("timings (s): " + ", ".join(f"{k} {v:.2f}" for k, v in d["timings_s"].items()))
@@ -123,13 +68,6 @@ def cmd_process(args) -> int:
         print("authored: nothing (no prim was shadowed or relit)")
     print(f"wrote {summary.output} ({summary.output_bytes / 1e6:.1f} MB with {summary.probe_files} probe textures)")
     return 0
-
-
-def add_role_options(p) -> None:
-    """--avatar/--object/--scene: roles given on the command line (``usdgs process`` and ``usdgs lights``)."""
-    p.add_argument("--avatar", action="append", metavar="PATH", help="treat this prim as an avatar (repeatable)")
-    p.add_argument("--object", action="append", metavar="PATH", help="treat this prim as an inserted object")
-    p.add_argument("--scene", action="append", metavar="PATH", help="treat this prim as scene")
 
 
 def register_process(sub, formatter):

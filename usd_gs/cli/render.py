@@ -76,9 +76,9 @@ def write_exr_rgba(path: str, rgb, alpha) -> None:
 
 
 def cmd_render(args) -> int:
-    from usd_gs.usd.frames import parse_frames
     from usd_gs.render.preview import input_stage, render_stage_frame, resolve_camera, side_by_side
     from usd_gs.render.rasterize import write_png
+    from usd_gs.usd.frames import parse_frames
     from usd_gs.usd.stage import open_stage
 
     t_start = time.perf_counter()

@@ -328,8 +328,8 @@ def room_detail(opts: DemoOptions) -> list:
 
 
 def _write_room(opts: DemoOptions, path: Path):
-    from usd_gs.usd.bricks import write_bricked
     from usd_gs.demo.room import make_room
+    from usd_gs.usd.bricks import write_bricked
     from usd_gs.usd.gaussian_prim import save_stage_atomic
 
     room = make_room(size=ROOM_SIZE, density=opts.room_density, seed=opts.seed, detail=room_detail(opts),
@@ -345,8 +345,8 @@ def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path) -> int:
 
     from usd_gs.demo.mesh_avatar import posed_avatar_frames, posed_meshes
     from usd_gs.io.gltf import load_skinned_mesh
-    from usd_gs.usd.schema import apply_role
     from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
 
     mesh = load_skinned_mesh(glb)
     times = frame_times(opts.frames)
@@ -393,8 +393,8 @@ def _write_capture(opts: DemoOptions, ply: Path, path: Path, prim_path: str, rol
     from pxr import Gf, Sdf, UsdGeom
 
     from usd_gs.io.ply import read_ply
-    from usd_gs.usd.schema import apply_role
     from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
 
     full = read_ply(ply)
     m = canonical_matrix(full.positions, rot, height)  # from the full capture: --quick keeps the same frame

@@ -147,7 +147,6 @@ def culling_timings(fi, cfg: DGSMConfig | None = None, subset: int = 16) -> dict
     ``subset``-th receiver's samples and scaled by the ROI pixel count, as
     benchmarks/bench_dgsm.py does). Best of 2, wall seconds."""
     from numba_kernels import dgsm_build
-
     from usd_gs.shadows.dgsm import footprint_samples, prepare_occluders
     from usd_gs.shadows.shot import shadow_cone_indices
 

@@ -68,8 +68,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from usd_gs import sh3dgs
-from usd_gs.evaluation.colorimetry import luminance, rgb_to_lab
 from usd_gs.errors import UserError
+from usd_gs.evaluation.colorimetry import luminance, rgb_to_lab
 from usd_gs.gaussians import GaussianSet
 
 SH_ORDER = 3
@@ -441,7 +441,7 @@ def lighting_consistency(orig: GaussianSet, relit: GaussianSet, scene: GaussianS
     Gaussians within the radius hidden from the centroid, not in ``N``); lower metric values
     are better.
     """
-    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.gaussians import alpha_weighted_centroid
 
     if orig.count != relit.count:
         raise UserError(f"{relit.label}: relit avatar has {relit.count} Gaussians, the original {orig.count}")
@@ -472,9 +472,8 @@ def summarize(results: list[dict]) -> dict:
     return out
 
 
-from usd_gs.evaluation.lighting_stage import lighting_consistency_for_stage  # noqa: E402  (re-export)
 
 __all__ = ["METRICS", "FactorizationFit", "SceneLighting", "apf_y", "avatar_metrics", "emd_2d", "fit_affine",
            "fit_factorization", "gaussian_colors", "identified_subspace", "irradiance", "lighting_consistency",
-           "lighting_consistency_for_stage", "ncm_ab", "paa_y", "pseudo_normals", "scene_lighting", "sh_basis",
+           "ncm_ab", "paa_y", "pseudo_normals", "scene_lighting", "sh_basis",
            "sh_rank", "summarize", "weighted_local_pca"]

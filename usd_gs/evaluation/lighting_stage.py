@@ -55,11 +55,11 @@ def lighting_consistency_for_stage(output_stage_path, frames=None, radius: float
     """
     from pxr import Usd, UsdGeom
 
-    from usd_gs.gaussians import GaussianSet
     from usd_gs.evaluation.lighting_metrics import lighting_consistency, summarize
+    from usd_gs.gaussians import GaussianSet
+    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
     from usd_gs.usd.roles import resolve_roles
     from usd_gs.usd.stage import open_stage
-    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
 
     out_path = str(output_stage_path)
     out_stage = open_stage(out_path)

@@ -33,7 +33,6 @@ def visible_from(gaussians: GaussianSet, point, size: int = 64, rel_tol: float =
     ``abs_tol`` of the point count as visible.
     """
     from numba_kernels.cubemap_dirs import FACE_FRAMES, direction_to_face_uv
-
     from usd_gs.render.rasterize import render_cube_faces
 
     n = gaussians.count

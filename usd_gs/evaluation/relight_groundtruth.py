@@ -159,9 +159,9 @@ def _occluded(rt, points, target):
 def env_image(hdr=None, size=(16, 32), mean_radiance: float = 0.6) -> np.ndarray:
     """Lat-long environment (h, w, 3) float64 from an HDR of ``/work/shared/data/hdri``-like data,
     box-filtered to ``size`` and scaled so that its mean luminance over the sphere is ``mean_radiance``."""
-    from usd_gs.io import envmap
-    from usd_gs.evaluation.colorimetry import luminance
     from usd_gs.demo.stage import locate_data_dir
+    from usd_gs.evaluation.colorimetry import luminance
+    from usd_gs.io import envmap
 
     path = Path(hdr) if hdr is not None else locate_data_dir() / "hdri" / DEFAULT_HDR
     img = np.asarray(envmap.read_envmap(path), np.float64)
@@ -322,12 +322,11 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     px^2 (None: its default, which is what the main job uses).
     """
     from numba_kernels.normals import gaussian_normals
-
-    from usd_gs.relight.avatar import relight_factors
-    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.gaussians import alpha_weighted_centroid
     from usd_gs.pipeline.shot import ProcessOptions
-    from usd_gs.relight.probe import PROBE_DILATION
+    from usd_gs.relight.avatar import relight_factors
     from usd_gs.relight.parallax import ProbeBlend
+    from usd_gs.relight.probe import PROBE_DILATION
     from usd_gs.shadows.shading import scale_sh
 
     o = options or ProcessOptions()
@@ -368,7 +367,7 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
     """
     from dataclasses import replace
 
-    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.gaussians import alpha_weighted_centroid
     from usd_gs.pipeline.shot import ProcessOptions
 
     t = {}

@@ -180,9 +180,9 @@ def open_eval_stage(path: str, camera: str | None = None, avatar: str | None = N
     from pxr import Usd, UsdGeom
 
     from usd_gs.render.preview import camera_prims, stage_label
+    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, is_gaussian_prim
     from usd_gs.usd.roles import resolve_roles
     from usd_gs.usd.stage import open_stage
-    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, is_gaussian_prim
 
     stage = open_stage(path)
     label = stage_label(stage)
@@ -227,7 +227,6 @@ def _cube_transmittance(caster, receivers, light, cfg, prepared, sphere):
     atlas of ablation C (``numba_kernels.cubemap``, 6 faces of ~``atlas_size / sqrt 6`` px:
     the same texel count), plain trilinear lookups."""
     from numba_kernels import cubemap, dgsm_sample
-
     from usd_gs.shadows.dgsm import footprint_samples
     from usd_gs.shadows.shot import shadow_cone_indices
 
@@ -251,8 +250,8 @@ def caster_strength(caster: GaussianSet, receivers, lights: list, cfg, roi: str 
     """(shadow strength ``1 - T`` (N,) float64 of every receiver from ``caster`` alone, wall
     seconds): one DGSM per light as the main job builds it, lights combined with
     ``shading.light_shares`` / ``combine_lights``. ``atlas``: 'octahedral' or 'cube'."""
-    from usd_gs.shadows.shading import combine_lights, light_shares
     from usd_gs.shadows.dgsm import prepare_occluders
+    from usd_gs.shadows.shading import combine_lights, light_shares
     from usd_gs.shadows.shot import caster_transmittance, occluder_sphere
 
     if atlas not in ATLASES:
@@ -292,7 +291,7 @@ class FrameInputs:
 
 
 def frame_inputs(ctx: EvalContext, frame: float) -> FrameInputs:
-    from usd_gs.relight.light_estimation import alpha_weighted_centroid
+    from usd_gs.gaussians import alpha_weighted_centroid
 
     caster = ctx.caster(frame)
     v, f = ctx.mesh(frame)
@@ -337,14 +336,10 @@ def mean_metrics(rows: list[dict]) -> dict:
 
 def dgsm_config_from_file(path: str | None):
     """(DGSMConfig, roi) from a ``usdgs process --config`` JSON file (None: defaults)."""
-    from usd_gs.cli.process import DGSM_KEYS, PROCESS_KEYS, _load_config
-    from usd_gs.shadows.dgsm import DGSMConfig
+    from usd_gs.pipeline.options import dgsm_config, load_config
 
-    cfg = _load_config(path) if path else {}
-    unknown = set(cfg) - set(DGSM_KEYS) - set(PROCESS_KEYS)
-    if unknown:
-        raise UserError(f"--config {path}: unknown option(s) {', '.join(sorted(unknown))}")
-    return DGSMConfig(**{k: cfg[k] for k in DGSM_KEYS if k in cfg}), cfg.get("roi", "cone")
+    cfg = load_config(path) if path else {}
+    return dgsm_config(cfg), cfg.get("roi", "cone")
 
 
 __all__ = ["EvalContext", "FrameInputs", "caster_strength", "default_eval_frames", "dgsm_config_from_file",

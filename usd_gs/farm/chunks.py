@@ -28,8 +28,8 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from usd_gs.io.atomic import atomic_output
 from usd_gs.errors import UserError
+from usd_gs.io.atomic import atomic_output
 
 FORMAT = "usdgs-chunk/1"
 PREFIX = "chunk_"
@@ -127,14 +127,13 @@ def _canon(value):
 
 
 def options_hash(options, lights, anchor: float | None = None) -> str:
-    """SHA-256 of every processing option except ``frames`` (and the input-derived up axis),
+    """SHA-256 of every processing option except ``frames``,
     the shot-level ``lights`` (None: per frame from the stage), the normals ``anchor`` frame
     and the package version."""
     from usd_gs import __version__
 
     opts = _canon(options)
     opts.pop("frames", None)
-    opts.get("dgsm", {}).pop("up_axis", None)
     text = json.dumps({"options": opts, "lights": _canon(lights), "anchor": _canon(anchor), "version": __version__},
                       sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()

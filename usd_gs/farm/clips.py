@@ -191,9 +191,9 @@ def assemble(folder, output, entries: list[dict] | None = None) -> AssembleSumma
     ``output``; see the module docstring. Checks that the input has not changed since."""
     from pxr import Sdf, Usd, Vt
 
+    from usd_gs.usd.gaussian_prim import save_stage_atomic
     from usd_gs.usd.output_layer import OutputLayer
     from usd_gs.usd.stage import check_usd_output_path, open_stage
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
 
     entries = entries if entries is not None else collect_chunks(folder)
     out = Path(os.path.abspath(output))

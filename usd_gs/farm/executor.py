@@ -14,7 +14,6 @@ the chunk folder must then be on a file system every worker sees.
 
 from __future__ import annotations
 
-import copy
 import os
 import sys
 import threading
@@ -74,7 +73,7 @@ def run_chunk(task: ChunkTask) -> ChunkResult:
     folder = Path(task.folder)
     chunk = task.chunk
     layer_path = chunk.layer_path(folder)
-    opts = replace(copy.deepcopy(task.options), frames=chunk.frames_spec())
+    opts = replace(task.options, frames=chunk.frames_spec())
     with _PROCESS_LOCK:
         proc = ShotProcessor(task.input_path, str(layer_path), opts, lights=task.lights,
                              anchor_frame=task.anchor_frame)

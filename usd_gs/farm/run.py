@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import copy
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,8 +76,8 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
     timings = {}
     folder = Path(clips_dir or default_clips_dir(output)).absolute()
     folder.mkdir(parents=True, exist_ok=True)
-    opts = copy.deepcopy(options)
-    shot = ShotProcessor(input_path, output, copy.deepcopy(options))
+    opts = options  # ShotProcessor does not modify its options
+    shot = ShotProcessor(input_path, output, opts)
     lights = shot.shot_lights()
     frames = shot.frames
     anchor = anchor_frame(shot.stage, frames)

@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 
 from numba_kernels.cubemap_dirs import cube_face_directions, direction_to_face_uv
-
 from usd_gs.errors import InputFormatError
 
 # --------------------------------------------------------------------------- conventions

@@ -40,16 +40,19 @@ import numpy as np
 import plyfile
 
 from usd_gs import sh3dgs
-from usd_gs.io.atomic import atomic_output
 from usd_gs.errors import GaussianDataError, InputFormatError, first_bad_index
-from usd_gs.gaussians import GaussianSet
+from usd_gs.gaussians import (  # noqa: F401  (raw <-> linear conversions, re-exported)
+    OPACITY_EPS,
+    GaussianSet,
+    logit_from_opacities,
+    opacities_from_logit,
+    scales_from_log,
+)
+from usd_gs.io.atomic import atomic_output
 
 #: number of ``f_rest_*`` properties -> SH degree
 REST_COUNT_TO_DEGREE = {0: 0, 9: 1, 24: 2, 45: 3}
 
-#: opacities are clamped to [OPACITY_EPS, 1 - OPACITY_EPS] before the logit when no raw
-#: logit is available, so that 0 and 1 give finite logits (about -16.1 and +16.1).
-OPACITY_EPS = 1e-7
 
 _POS = ("x", "y", "z")
 _DC = ("f_dc_0", "f_dc_1", "f_dc_2")
@@ -59,7 +62,6 @@ _REQUIRED = _POS + _DC + ("opacity",) + _SCALE + _ROT
 
 # exp() of log-scales outside this range leaves the float32 normal range
 _LOG_SCALE_MAX = float(np.log(np.finfo(np.float32).max))
-_TINY32 = float(np.finfo(np.float32).tiny)
 # a float32 quaternion whose float64 norm is this close to 1 is unit to float32 precision
 _UNIT_TOL = 2.0 ** -22
 
@@ -71,32 +73,6 @@ _PLY_TYPES = {
 }
 
 
-
-
-# --------------------------------------------------------------------------- activations
-def scales_from_log(log_scales: np.ndarray) -> np.ndarray:
-    """Linear sigma ``exp(log_scales)`` computed in float64, returned as float32.
-
-    Values below the float32 normal range become ``finfo(float32).tiny`` so that every
-    scale stays > 0; the caller must reject values above ``log(float32 max)``.
-    """
-    s = np.exp(np.asarray(log_scales, dtype=np.float64))
-    np.maximum(s, _TINY32, out=s)
-    return s.astype(np.float32)
-
-
-def opacities_from_logit(logits: np.ndarray) -> np.ndarray:
-    """Stable sigmoid in float64, returned as float32; ``-inf``/``+inf`` give 0/1 exactly."""
-    x = np.asarray(logits, dtype=np.float64)
-    e = np.exp(-np.abs(x))
-    out = np.where(x >= 0, 1.0 / (1.0 + e), e / (1.0 + e))
-    return out.astype(np.float32)
-
-
-def logit_from_opacities(opacities: np.ndarray) -> np.ndarray:
-    """``log(p / (1 - p))`` in float64 after clamping ``p`` to [OPACITY_EPS, 1 - OPACITY_EPS]."""
-    p = np.clip(np.asarray(opacities, dtype=np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
-    return (np.log(p) - np.log1p(-p)).astype(np.float32)
 
 
 # ------------------------------------------------------------------------------- reading

@@ -49,9 +49,9 @@ from pathlib import Path
 
 import numpy as np
 
-from usd_gs.io.atomic import atomic_output
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError
 from usd_gs.gaussians import GaussianSet
+from usd_gs.io.atomic import atomic_output
 from usd_gs.io.ply import scales_from_log
 
 SPZ_MAGIC = 0x5053474E

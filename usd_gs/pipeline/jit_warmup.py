@@ -36,6 +36,19 @@ from pathlib import Path
 
 import numpy as np
 
+from numba_kernels import dgsm_build, dgsm_sample
+from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
+from usd_gs.pipeline.options import ProcessOptions
+from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.shadows.dgsm import prepare_occluders
+from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
+from usd_gs.shadows.shot import Receivers, receiver_points, shared_transmittance
+from usd_gs.shadows.static_scene import StaticSceneAtlas
+from usd_gs.synthetic import random_gaussians
+from usd_gs.usd.lux import ShotLight
+
 #: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
 SENTINEL = ("numba_kernels.rasterize", "_blend")
 #: every group, in the order :func:`warm_up` compiles them
@@ -138,8 +151,6 @@ def _mark(group: str) -> None:
 
 
 def _tiny_scene():
-    from usd_gs.demo.synthetic import random_gaussians
-
     avatar = random_gaussians(64, 3, seed=1)
     avatar.positions[:] = avatar.positions * 0.05 + np.array([0.0, 1.0, 0.0], np.float32)
     scene = random_gaussians(256, 3, seed=2)
@@ -152,8 +163,6 @@ def _tiny_scene():
 def _fake_atlas(occ_count: int):
     """A tiny point-light atlas with contrasting voxels and one culling tile listing every
     occluder: enough to reach the refinement and accumulation kernels without building one."""
-    from numba_kernels import dgsm_build
-
     w, k = dgsm_build.TILE, 4
     values = np.tile(np.array([1.0, 0.0, 1.0, 0.0], np.float32), (w * w, 1))
     tiles = (np.array([0, occ_count], np.int64), np.arange(occ_count, dtype=np.int64), np.zeros(0, np.int64),
@@ -167,20 +176,6 @@ def warm_up(groups=GROUPS) -> None:
     shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
     ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
     shared atlas, light combination). Marks each group when done (see :func:`start`)."""
-    from numba_kernels import dgsm_build, dgsm_sample
-    from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
-
-    from usd_gs.relight.avatar import relight_factors
-    from usd_gs.gaussians import GaussianSet
-    from usd_gs.usd.lux import ShotLight
-    from usd_gs.relight.light_estimation import alpha_weighted_centroid
-    from usd_gs.pipeline.shot import ProcessOptions
-    from usd_gs.relight.parallax import ProbeBlend
-    from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
-    from usd_gs.shadows.dgsm import prepare_occluders
-    from usd_gs.shadows.shot import Receivers, receiver_points, shared_transmittance
-    from usd_gs.shadows.static_scene import StaticSceneAtlas
-
     opts = ProcessOptions().check()
     avatar, scene = _tiny_scene()
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))

@@ -25,109 +25,44 @@ from __future__ import annotations
 import os
 import shutil
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from pxr import Usd, UsdGeom
 
+from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from usd_gs.errors import UserError
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
+from usd_gs.pipeline import jit_warmup
+from usd_gs.pipeline.options import ProcessOptions
+from usd_gs.pipeline.summary import ProcessSummary
+from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.light_estimation import estimate_lights
+from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.shadows.dgsm import prepare_occluders
+from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
+from usd_gs.shadows.shot import (
+    Receivers,
+    caster_transmittance,
+    occluder_sphere,
+    occluders_toward,
+    prim_spheres,
+    prims_in_shadow,
+    receiver_points,
+    shared_transmittance,
+    toward_mask,
+)
+from usd_gs.shadows.static_scene import StaticSceneAtlas
+from usd_gs.usd.frames import parse_frames
+from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
 from usd_gs.usd.lux import ShotLight, read_stage_lights, write_estimated_lights
-from usd_gs.relight.light_estimation import alpha_weighted_centroid
-from usd_gs.relight.probe import PROBE_SUPERSAMPLE
-from usd_gs.shadows.dgsm import DGSMConfig
+from usd_gs.usd.output_author import OutputAuthor
+from usd_gs.usd.output_layer import OutputLayer
+from usd_gs.usd.roles import resolve_roles
+from usd_gs.usd.stage import open_stage
 
-
-@dataclass
-class ProcessOptions:
-    """Options of ``usdgs process`` (see ``usdgs process --help`` for each)."""
-
-    frames: str | None = None
-    lights: str = "auto"  # 'auto' | 'stage' | a number of lights to estimate
-    lights_per_frame: bool = False
-    scene_paths: tuple[str, ...] = ()
-    avatar_paths: tuple[str, ...] = ()
-    object_paths: tuple[str, ...] = ()
-    direct_fraction: float = 1.0
-    default_light_count: int = 2
-    dgsm: DGSMConfig = field(default_factory=DGSMConfig)
-    contact_bias: float = 0.03
-    emitter_radius: float = 0.25
-    roi: str = "cone"  # receiver ROI per caster: 'cone' | 'box' (the paper's) | 'all'
-    probe_size: int = 32
-    probe_degree: int = 3
-    transfer_degree: int = 4
-    probe_points: int = 8
-    probe_supersample: int = PROBE_SUPERSAMPLE  # usd_gs.relight.probe: 1, drawn at the probe size
-    probe_texture: tuple[int, int] = (32, 64)
-    relight_q: float = 1.0
-    relight_gamma: float = 1.0
-    relight_t_max: float = 8.0
-
-    def check(self) -> ProcessOptions:
-        if not 0.0 <= self.direct_fraction <= 1.0:
-            raise UserError(f"--direct-fraction must be in [0, 1], got {self.direct_fraction}")
-        if self.roi not in ("cone", "box", "all"):
-            raise UserError(f"roi must be 'cone', 'box' or 'all', got '{self.roi}'")
-        if self.probe_size < 4 or self.probe_degree < 0 or self.probe_degree > 3:
-            raise UserError("probe size must be >= 4 and probe degree 0..3")
-        if not 0 <= self.transfer_degree <= 8:
-            raise UserError(f"transfer degree must be 0..8, got {self.transfer_degree}")
-        if not 1 <= self.probe_points <= 64:
-            raise UserError(f"probe points must be 1..64, got {self.probe_points}")
-        if not 1 <= self.probe_supersample <= 4:
-            raise UserError(f"probe supersampling must be 1..4, got {self.probe_supersample}")
-        if self.lights not in ("auto", "stage"):
-            try:
-                k = int(self.lights)
-            except ValueError:
-                raise UserError(f"--lights must be 'auto', 'stage' or a number, got '{self.lights}'") from None
-            if not 1 <= k <= 16:
-                raise UserError(f"--lights {k}: estimate between 1 and 16 lights")
-        self.dgsm.validate()
-        return self
-
-
-@dataclass
-class ProcessSummary:
-    """What a run did: roles, lights, frames, per-stage seconds, output files and sizes."""
-
-    input: str
-    output: str
-    roles: list
-    lights: list
-    frames: list
-    timings: dict
-    warnings: list
-    output_bytes: int = 0
-    probe_files: int = 0
-    samples_written: int = 0
-    affected: dict = field(default_factory=dict)
-
-    @property
-    def seconds(self) -> float:
-        """Wall seconds of the whole run."""
-        return float(self.timings.get("total", 0.0))
-
-    def as_dict(self) -> dict:
-        frame_time = self.timings.get("frames", 0.0)
-        return {
-            "input": self.input, "output": self.output,
-            "roles": [{"path": r.path, "role": r.role, "from": r.source, "dynamic": r.dynamic,
-                       "casts_shadows": r.casts_shadows, "receives_shadows": r.receives_shadows,
-                       "relight": r.relight} for r in self.roles],
-            "lights": [{"name": lt.name, "kind": lt.kind, "position": [float(x) for x in lt.position],
-                        "direction": [float(x) for x in lt.direction], "color": [float(x) for x in lt.color],
-                        "intensity": float(lt.intensity), "score": lt.score, "source": lt.source}
-                       for lt in self.lights],
-            "frames": {"count": len(self.frames), "first": self.frames[0] if self.frames else None,
-                       "last": self.frames[-1] if self.frames else None},
-            "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
-            "seconds_per_frame": round(frame_time / max(len(self.frames), 1), 4),
-            "frames_per_second": round(len(self.frames) / frame_time, 3) if frame_time > 0 else None,
-            "output_bytes": self.output_bytes, "probe_files": self.probe_files,
-            "samples_written": self.samples_written, "affected_frames": self.affected,
-            "warnings": self.warnings,
-        }
+__all__ = ["ProcessOptions", "ProcessSummary", "ShotProcessor", "default_output_path"]
 
 
 class _Clock:
@@ -150,8 +85,30 @@ def _safe_name(path: str) -> str:
     return path.rstrip("/").rsplit("/", 1)[-1]
 
 
+@dataclass
+class FrameShadows:
+    """One frame's shadow pass: the moving receivers (``drecv``), the static receivers some light
+    is blocked for (``touched``, indices into the static receivers) with their combined
+    transmittance ``t_touched``, and every moving receiver's combined transmittance ``t_dyn``."""
+
+    drecv: Receivers
+    touched: np.ndarray
+    t_touched: np.ndarray
+    t_dyn: np.ndarray
+
+
+@dataclass
+class _MovingCasters:
+    """Per frame: each moving caster's packed occluders and bounding sphere, and the bounding
+    sphere of each moving receiver (prim-level culling against a caster's beam)."""
+
+    packed: dict
+    bound: dict
+    receiver_spheres: dict
+
+
 class ShotProcessor:
-    """Runs the steps of the module docstring for one input stage."""
+    """Runs the steps of the module docstring for one input stage. ``options`` is not modified."""
 
     def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions,
                  lights: list[ShotLight] | None = None, anchor_frame: float | None = None):
@@ -165,16 +122,24 @@ class ShotProcessor:
         self.anchor_frame = anchor_frame
         self.clock = _Clock()
         self.warnings: list[str] = []
+        # the shot's DGSM options: the user's with the stage's up axis (set by _open)
+        self.dgsm = self.opts.dgsm
+        self._centre_cfg = replace(self.dgsm, sampling="center")
+        self.mpu = 1.0
+        # caches that live for the whole shot
+        self._shot_lights: list[ShotLight] | None = None
+        self._scene_packs: dict = {}  # per light: the static scene's atlas and emitter mask
+        self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
+        self._local_normals: dict = {}
+        self._probe_blends: dict = {}
+        self._local_sh_cache: dict = {}
+        # what the run did
+        self.affected: dict[str, int] = {}
+        self.probe_files = 0
+        self.lights_used: list[ShotLight] = []
 
     # ------------------------------------------------------------------ set-up
     def _open(self):
-        from pxr import Usd, UsdGeom
-
-        from usd_gs.usd.frames import parse_frames
-        from usd_gs.usd.roles import resolve_roles
-        from usd_gs.usd.stage import open_stage
-        from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims
-
         t0 = time.perf_counter()
         self.stage = open_stage(self.input_path)
         prims = find_gaussian_prims(self.stage)
@@ -188,21 +153,15 @@ class ShotProcessor:
         self.warnings += warnings
         self.frames = parse_frames(self.opts.frames, self.stage.GetStartTimeCode(), self.stage.GetEndTimeCode())
         up = UsdGeom.GetStageUpAxis(self.stage)
-        self.opts.dgsm.up_axis = "Z" if up == UsdGeom.Tokens.z else "Y"
+        self.dgsm = replace(self.opts.dgsm, up_axis="Z" if up == UsdGeom.Tokens.z else "Y")
+        self._centre_cfg = replace(self.dgsm, sampling="center")
+        self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
         self.clock.add("open", t0)
 
     def _read(self, path: str, frame: float):
-        from pxr import Usd
-
-        from usd_gs.usd.gaussian_prim import read_gaussian_prim
-
         return read_gaussian_prim(self.prims[path], Usd.TimeCode(frame))
 
     def _read_static(self):
-        from pxr import Usd
-
-        from usd_gs.usd.gaussian_prim import read_gaussian_prim
-
         t0 = time.perf_counter()
         self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime())
                        for r in self.roles if not r.per_frame}
@@ -210,9 +169,6 @@ class ShotProcessor:
 
     # ------------------------------------------------------------------ lights
     def _estimate(self, frames: list[float], k: int) -> list[ShotLight]:
-        from usd_gs.gaussians import GaussianSet
-        from usd_gs.relight.light_estimation import estimate_lights
-
         scene = [g for r in self.roles if r.role == "scene" and not r.per_frame for g in [self.static[r.path]]]
         if not scene:
             self.warnings.append("no static scene prim: no lights can be estimated")
@@ -229,8 +185,6 @@ class ShotProcessor:
                           intensity=float(e.intensity), score=float(e.score)) for i, e in enumerate(est)]
 
     def _lights(self, frame: float) -> list[ShotLight]:
-        from pxr import Usd
-
         if self.preset_lights is not None:
             return self.preset_lights
         t0 = time.perf_counter()
@@ -261,116 +215,66 @@ class ShotProcessor:
         """The shot-level step of a chunked run: opens the input and returns the lights estimated
         once over the whole frame range (what every chunk must use), or None where each frame
         reads the stage's UsdLux lights or re-estimates (``lights_per_frame``). Sets ``frames``."""
-        from pxr import UsdGeom
-
         self._open()
-        self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
         self._read_static()
-        self._shot_lights = None
         if self.opts.lights_per_frame:
             return None
         lights = self._lights(self.frames[0])
         return lights if not lights or lights[0].source == "estimated" else None
 
-    # ------------------------------------------------------------------ per frame
+    # ------------------------------------------------------------------ per shot
     def _shot_setup(self):
         """What does not change from frame to frame: static receivers (concatenated once, with
         each prim's bounding sphere for brick-level culling) and static casters."""
-        from usd_gs.shadows.shot import Receivers, prim_spheres
-
         receivers = [r.path for r in self.roles if r.receives_shadows]
         self._static_recv_paths = [p for p in receivers if p in self.static]
         self._dyn_recv_paths = [p for p in receivers if p not in self.static]
         self._static_recv = Receivers.build([(p, self.static[p]) for p in self._static_recv_paths])
-        self._spheres = prim_spheres(self._static_recv, self.opts.dgsm.k_sigma)
+        self._spheres = prim_spheres(self._static_recv, self.dgsm.k_sigma)
         static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
         casters = Receivers.build([(p, self.static[p]) for p in static_casters])
         self._scene_block = casters.gaussians if static_casters else None
-        spheres = prim_spheres(casters, self.opts.dgsm.k_sigma)
+        spheres = prim_spheres(casters, self.dgsm.k_sigma)
         self._caster_ranges = [casters.ranges[p] for p in spheres]
         self._caster_centres = np.array([spheres[p][0] for p in spheres]).reshape(-1, 3)
         self._caster_radii = np.array([spheres[p][1] for p in spheres])
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
 
+    # ------------------------------------------------------------------ per frame
     def _frame(self, frame: float, author, probe_dir: Path):
-        from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
-        from usd_gs.shadows.dgsm import prepare_occluders
-        from usd_gs.shadows.shot import (
-            Receivers,
-            caster_transmittance,
-            occluder_sphere,
-            occluders_toward,
-            prims_in_shadow,
-            receiver_points,
-            shared_transmittance,
-            toward_mask,
-        )
-
-        clk = self.clock
+        """One frame: read what moves, the lights, then the shadow, relighting and authoring passes."""
         t = time.perf_counter()
         dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
         sets = {**self.static, **dyn}
-        t = clk.add("read", t)
+        self.clock.add("read", t)
         lights = self._lights(frame)
         self.lights_used = lights
+        shadows = self._shadow_pass(sets, lights)
+        t = time.perf_counter()
+        relit = self._relight_pass(dyn, sets, frame, author, probe_dir)
+        t = self.clock.add("relight", t)
+        self._author_pass(frame, author, sets, shadows, relit)
+        self.clock.add("write", t)
+
+    def _shadow_pass(self, sets: dict, lights: list[ShotLight]) -> FrameShadows:
+        """Every light's transmittance on every receiver, combined by the lights' shares."""
+        clk = self.clock
         t = time.perf_counter()
         srecv = self._static_recv
         drecv = Receivers.build([(p, sets[p]) for p in self._dyn_recv_paths])
         t = clk.add("prepare", t)
 
-        cfg = self.opts.dgsm
+        cfg = self.dgsm
         packed = {q: prepare_occluders(sets[q], cfg) for q in self._casters_dyn} if lights else {}
         bound = {q: occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
         # moving receivers: prim-level culling against each caster's beam, as for the bricks
         dspheres = {p: bound[p] if p in bound else occluder_sphere(sets[p], cfg.k_sigma)
                     for p in self._dyn_recv_paths if sets[p].count} if packed else {}
+        movers = _MovingCasters(packed, bound, dspheres)
         s_light, d_light, touched = [], [], []
         for light in lights:
-            ts = np.ones(srecv.gaussians.count)
-            hits = []
-            td = np.ones(drecv.gaussians.count)
-            for q in self._casters_dyn:
-                # one DGSM per caster and light, over the static and the dynamic receivers' voxels
-                hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma, bound[q])
-                part_s = None
-                if hit:
-                    cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
-                    part_s = receiver_points(sets[q], srecv, light, cfg, roi=self.opts.roi, candidates=cand,
-                                             sphere=bound[q])
-                part_d = None
-                dhit = [p for p in prims_in_shadow(dspheres, sets[q], light, cfg.k_sigma, bound[q]) if p != q]
-                if dhit:
-                    cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
-                    part_d = receiver_points(sets[q], drecv, light, cfg, roi=self.opts.roi, candidates=cand,
-                                             sphere=bound[q])
-                (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, packed[q])
-                ts[idx] *= val
-                hits.append(idx[val < 1.0])
-                td[idx_d] *= val_d
-            if self._scene_block is not None and self._scene_block.count and light.kind == "point":
-                # the static scene's atlas, built once per shot and light, voxel columns on demand
-                part = receiver_points(self._scene_block, drecv, light, self._centre_cfg, roi="all",
-                                       bias=self.opts.contact_bias / self.mpu)
-                if part is not None:
-                    td[part[0]] *= self._static_atlas(light).transmittance(part[1])
-            elif self._scene_block is not None and self._scene_block.count:
-                block = self._scene_block
-                keep = self._emitter_keep(light)
-                for p in self._dyn_recv_paths:
-                    # brick-level culling first, then per Gaussian
-                    near_prims = toward_mask(self._caster_centres, self._caster_radii, sets[p].positions, light)
-                    if not near_prims.any():
-                        continue
-                    cand = np.concatenate([np.arange(*self._caster_ranges[k]) for k in np.flatnonzero(near_prims)])
-                    cand = cand[keep[cand]]
-                    near = occluders_toward(block, sets[p].positions, light, cfg.k_sigma, candidates=cand)
-                    if near.size == 0:
-                        continue
-                    a, b = drecv.ranges[p]
-                    idx, val = caster_transmittance(block.subset(near), drecv, light, self._centre_cfg, roi="cone",
-                                                    bias=self.opts.contact_bias / self.mpu,
-                                                    candidates=np.arange(a, b))
-                    td[idx] *= val
+            ts, td, hits = self._moving_caster_shadows(light, sets, drecv, movers)
+            self._scene_shadows_on_moving(light, sets, drecv, td)
             s_light.append(ts)
             d_light.append(td)
             touched.extend(hits)
@@ -382,20 +286,83 @@ class ShotProcessor:
             t_static_u = combine_lights(per, light_shares(lights, srecv.gaussians.positions[u]))
         t_dyn = (combine_lights(d_light, light_shares(lights, drecv.gaussians.positions)) if lights
                  else np.ones(drecv.gaussians.count, np.float32))
-        t = clk.add("shadows", t)
+        clk.add("shadows", t)
+        return FrameShadows(drecv, u, t_static_u, t_dyn)
 
-        # relighting (probe + transfer) for avatars and objects
+    def _moving_caster_shadows(self, light, sets: dict, drecv: Receivers, movers: _MovingCasters):
+        """One light: every moving caster's DGSM sampled on the static receivers in its beam and
+        on the other moving receivers. Returns (static transmittance, moving transmittance, the
+        static receivers some caster shadows)."""
+        cfg = self.dgsm
+        srecv = self._static_recv
+        ts = np.ones(srecv.gaussians.count)
+        hits = []
+        td = np.ones(drecv.gaussians.count)
+        for q in self._casters_dyn:
+            bound = movers.bound[q]
+            # one DGSM per caster and light, over the static and the dynamic receivers' voxels
+            hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma, bound)
+            part_s = None
+            if hit:
+                cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
+                part_s = receiver_points(sets[q], srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
+            part_d = None
+            dhit = [p for p in prims_in_shadow(movers.receiver_spheres, sets[q], light, cfg.k_sigma, bound) if p != q]
+            if dhit:
+                cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
+                part_d = receiver_points(sets[q], drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
+            (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, movers.packed[q])
+            ts[idx] *= val
+            hits.append(idx[val < 1.0])
+            td[idx_d] *= val_d
+        return ts, td, hits
+
+    def _scene_shadows_on_moving(self, light, sets: dict, drecv: Receivers, td: np.ndarray) -> None:
+        """Multiplies ``td`` (the moving receivers' transmittance for ``light``) by the static
+        scene's: from its shot-long atlas for a point light, from per-prim culled occluders for a
+        directional one."""
+        block = self._scene_block
+        if block is None or not block.count:
+            return
+        if light.kind == "point":
+            # the static scene's atlas, built once per shot and light, voxel columns on demand
+            part = receiver_points(block, drecv, light, self._centre_cfg, roi="all",
+                                   bias=self.opts.contact_bias / self.mpu)
+            if part is not None:
+                td[part[0]] *= self._static_atlas(light).transmittance(part[1])
+            return
+        keep = self._emitter_keep(light)
+        for p in self._dyn_recv_paths:
+            # brick-level culling first, then per Gaussian
+            near_prims = toward_mask(self._caster_centres, self._caster_radii, sets[p].positions, light)
+            if not near_prims.any():
+                continue
+            cand = np.concatenate([np.arange(*self._caster_ranges[k]) for k in np.flatnonzero(near_prims)])
+            cand = cand[keep[cand]]
+            near = occluders_toward(block, sets[p].positions, light, self.dgsm.k_sigma, candidates=cand)
+            if near.size == 0:
+                continue
+            a, b = drecv.ranges[p]
+            idx, val = caster_transmittance(block.subset(near), drecv, light, self._centre_cfg, roi="cone",
+                                            bias=self.opts.contact_bias / self.mpu, candidates=np.arange(a, b))
+            td[idx] *= val
+
+    def _relight_pass(self, dyn: dict, sets: dict, frame: float, author, probe_dir: Path) -> dict:
+        """``{path: (N, 3) s(n)}`` for every relit avatar and object (probe + transfer)."""
         relit = {}
         for r in self.roles:
             if r.per_frame and r.relight and r.role in ("avatar", "object"):
                 everything, spans = self._shot_buffer(dyn)
                 relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author,
                                               probe_dir)
-        t = clk.add("relight", t)
+        return relit
 
-        # authoring: static prims only where shadowed now or before; dynamic ones always. Results
-        # are per-Gaussian colour factors, which commute with SH band rotations: they are applied
-        # to the prim-local SH that the attribute holds (the world-space SH are rotated).
+    def _author_pass(self, frame: float, author, sets: dict, shadows: FrameShadows, relit: dict) -> None:
+        """Static prims only where shadowed now or before; dynamic ones always. Results are
+        per-Gaussian colour factors, which commute with SH band rotations: they are applied to the
+        prim-local SH that the attribute holds (the world-space SH are rotated)."""
+        srecv, drecv = self._static_recv, shadows.drecv
+        u, t_static_u, t_dyn = shadows.touched, shadows.t_touched, shadows.t_dyn
         affected = []
         f = self.opts.direct_fraction
         gamma = self.opts.relight_gamma
@@ -424,7 +391,6 @@ class ShotProcessor:
             if p not in drecv.ranges:
                 sh_in = self._local_sh(p, frame, sets[p])
                 author.receiver(p, frame, np.ones(sets[p].count, np.float32), scale_sh(sh_in, gamma * scale), sh_in)
-        clk.add("write", t)
         for p in affected:
             self.affected[p] = self.affected.get(p, 0) + 1
 
@@ -432,10 +398,6 @@ class ShotProcessor:
         """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at
         ``frame``: ``g.sh`` (world space) when the prim's world transform has no rotation, else
         read unrotated (once per shot for static prims)."""
-        from pxr import Usd, UsdGeom
-
-        from usd_gs.usd.gaussian_prim import read_gaussian_prim
-
         static = path in self.static
         if static and path in self._local_sh_cache:
             return self._local_sh_cache[path]
@@ -451,8 +413,6 @@ class ShotProcessor:
     def _shot_buffer(self, dyn: dict):
         """Every Gaussian of the frame in one set for probe renders: the static part is copied
         once per shot, each frame only overwrites the dynamic prims' slots."""
-        from usd_gs.gaussians import GaussianSet
-
         counts = tuple((p, g.count, g.sh_degree) for p, g in dyn.items())
         if self._buffer is None or self._buffer[0] != counts:
             order = list(self.static) + list(dyn)
@@ -477,8 +437,6 @@ class ShotProcessor:
     def _static_atlas(self, light):
         """The static casters' shot-long DGSM for a point light (``usd_gs.shadows.static_scene``),
         without the light's own emitter Gaussians (:meth:`_emitter_keep`)."""
-        from usd_gs.shadows.static_scene import StaticSceneAtlas
-
         key = ("atlas", tuple(np.round(light.position, 6)))
         if key not in self._scene_packs:
             self._scene_packs[key] = StaticSceneAtlas(self._scene_block.subset(self._emitter_keep(light)),
@@ -501,12 +459,6 @@ class ShotProcessor:
         return self._scene_packs[key]
 
     def _relight(self, path, g, everything, span, frame, author, probe_dir):
-        from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
-
-        from usd_gs.pipeline import jit_warmup
-        from usd_gs.relight.avatar import relight_factors
-        from usd_gs.relight.parallax import ProbeBlend
-
         jit_warmup.wait_for("relight")  # cold cache: the warm-up process compiles these kernels
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
@@ -545,8 +497,6 @@ class ShotProcessor:
     # ------------------------------------------------------------------ run
     def run(self, progress: bool = True) -> ProcessSummary:
         """Process the shot (module docstring); returns the summary."""
-        from usd_gs.pipeline import jit_warmup
-
         t_start = time.perf_counter()
         warmup = jit_warmup.start()  # cold numba cache: compile the later kernels in a second process
         try:
@@ -555,25 +505,9 @@ class ShotProcessor:
             jit_warmup.stop(warmup)
 
     def _run(self, t_start: float, progress: bool) -> ProcessSummary:
-        from pxr import UsdGeom
-
-        from usd_gs.usd.output_author import OutputAuthor
-        from usd_gs.usd.output_layer import OutputLayer
-
         self._open()
-        self.mpu = UsdGeom.GetStageMetersPerUnit(self.stage) or 1.0
         self._read_static()
         self._shot_setup()
-        self._shot_lights = None
-        self._scene_packs = {}
-        self._buffer = None
-        self._centre_cfg = replace(self.opts.dgsm, sampling="center")
-        self._local_normals = {}
-        self._probe_blends = {}
-        self._local_sh_cache = {}
-        self.affected = {}
-        self.probe_files = 0
-        self.lights_used = []
         out_path = Path(self.output_path)
         self.final_probe_dir = out_path.with_name(out_path.stem + "_probes")
         probe_dir = out_path.with_name(f".{out_path.stem}_probes.tmp{os.getpid()}")
@@ -586,7 +520,7 @@ class ShotProcessor:
                 frames = self.frames
                 bar = None
                 if progress:
-                    from tqdm import tqdm
+                    from tqdm import tqdm  # only for an interactive run
 
                     bar = tqdm(total=len(frames), unit="frame", desc="usdgs process", leave=False)
                 t_frames = time.perf_counter()

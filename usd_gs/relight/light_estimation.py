@@ -131,19 +131,6 @@ class EstimatedLight:
         return self.color / y if y > 0 else np.ones(3)
 
 
-def alpha_weighted_centroid(gaussians: GaussianSet) -> np.ndarray:
-    """``sum_i a_i p_i / sum_i a_i`` in float64 (plain mean if every opacity is 0). Raises on an empty set."""
-    if gaussians.count == 0:
-        raise GaussianDataError(f"{gaussians.label}: cannot take the centroid of an empty Gaussian set")
-    a = gaussians.opacities.astype(np.float64)
-    p = gaussians.positions.astype(np.float64)
-    w = a.sum()
-    c = (a @ p) / w if w > 0 else p.mean(axis=0)
-    if not np.all(np.isfinite(c)):
-        raise GaussianDataError(f"{gaussians.label}: 'positions'/'opacities' give a non-finite centroid")
-    return c
-
-
 def make_viewpoints(centroid, config: LightEstimationConfig, meters_per_unit: float = 1.0) -> np.ndarray:
     """Viewpoints near the character (V, 3) float64, scene units (see :class:`LightEstimationConfig`)."""
     c = np.asarray(centroid, dtype=np.float64).reshape(3)

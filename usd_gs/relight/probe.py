@@ -28,9 +28,9 @@ from functools import lru_cache
 import numpy as np
 
 from usd_gs import sh3dgs
-from usd_gs.io import envmap
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
+from usd_gs.io import envmap
 
 _MAX_DEGREE = 8
 

@@ -20,7 +20,6 @@ from numba_kernels.normals import gaussian_normals
 from numba_kernels.sh_real import threedgs_to_rh
 from numba_kernels.sh_transfer import relight_sh_coefficients, transfer_scale_sh
 from numba_kernels.zh_transfer import zh_diffuse_color
-
 from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, UserError, first_bad_index
 from usd_gs.gaussians import GaussianSet

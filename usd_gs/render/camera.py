@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from numba_kernels.cubemap_dirs import FACE_FRAMES, FACE_NAMES
-
 from usd_gs.errors import UserError
 
 # OpenGL cube-map faces, shared with numba_kernels/cubemap_dirs.py (a numpy-only module):

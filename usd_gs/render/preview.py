@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from usd_gs.render import rasterize as _render
-from usd_gs.render.camera import Camera
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
+from usd_gs.render import rasterize as _render
+from usd_gs.render.camera import Camera
 
 DEFAULT_WIDTH = 960
 FALLBACK_ASPECT = 16.0 / 9.0

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from usd_gs.render.camera import Camera, cube_face_cameras
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
+from usd_gs.render.camera import Camera, cube_face_cameras
 
 DEFAULT_DILATION = 0.3  # px^2 added to the 2D covariance diagonal (3DGS low-pass filter)
 

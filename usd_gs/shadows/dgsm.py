@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_directional, dgsm_exact, dgsm_model, dgsm_sample
-
 from usd_gs.errors import GaussianDataError, UserError, first_bad_index
 from usd_gs.gaussians import GaussianSet
 

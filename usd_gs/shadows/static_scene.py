@@ -24,7 +24,6 @@ from __future__ import annotations
 import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
-
 from usd_gs.gaussians import GaussianSet
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
 

@@ -47,8 +47,8 @@ def write_bricked(stage, path: str, gaussians: GaussianSet, max_count: int, keep
     conformant Gaussian prim); apply ``role`` to every brick. Returns the brick paths."""
     from pxr import UsdGeom
 
-    from usd_gs.usd.schema import apply_role
     from usd_gs.usd.gaussian_prim import write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
 
     UsdGeom.Xform.Define(stage, path)
     paths = []

@@ -31,9 +31,9 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt
 
 from usd_gs import sh3dgs
-from usd_gs.io.atomic import atomic_output
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError, first_bad_index
 from usd_gs.gaussians import GaussianSet
+from usd_gs.io.atomic import atomic_output
 from usd_gs.usd.schema import RoleInfo, read_role, register_plugins
 
 register_plugins()

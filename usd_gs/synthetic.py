@@ -18,8 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from usd_gs import sh3dgs
-from usd_gs.gaussians import GaussianSet
-from usd_gs.io.ply import opacities_from_logit, scales_from_log
+from usd_gs.gaussians import GaussianSet, opacities_from_logit, scales_from_log
 
 
 def random_gaussians(n: int, degree: int = 3, seed: int = 0) -> GaussianSet:

@@ -1,0 +1,105 @@
+"""Options of the main job (``usdgs process``) and their JSON ``--config`` file.
+
+``ProcessOptions`` is a plain value: nothing in the pipeline mutates it (the shot's up axis
+lives in ``ShotProcessor.dgsm``). Config files hold a JSON object whose keys are the long
+option names with '_' (``direct_fraction``, ``atlas_size``, ...): DGSM keys are the fields of
+``usd_gs.shadows.dgsm.DGSMConfig`` that a user may set (:data:`DGSM_KEYS`), the others those of
+:class:`ProcessOptions` (:data:`PROCESS_KEYS`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields
+
+from usd_gs.errors import UserError
+from usd_gs.relight.probe import PROBE_SUPERSAMPLE
+from usd_gs.shadows.dgsm import DGSMConfig
+
+
+@dataclass
+class ProcessOptions:
+    """Options of ``usdgs process`` (see ``usdgs process --help`` for each)."""
+
+    frames: str | None = None
+    lights: str = "auto"  # 'auto' | 'stage' | a number of lights to estimate
+    lights_per_frame: bool = False
+    scene_paths: tuple[str, ...] = ()
+    avatar_paths: tuple[str, ...] = ()
+    object_paths: tuple[str, ...] = ()
+    direct_fraction: float = 1.0
+    default_light_count: int = 2
+    dgsm: DGSMConfig = field(default_factory=DGSMConfig)
+    contact_bias: float = 0.03
+    emitter_radius: float = 0.25
+    roi: str = "cone"  # receiver ROI per caster: 'cone' | 'box' (the paper's) | 'all'
+    probe_size: int = 32
+    probe_degree: int = 3
+    transfer_degree: int = 4
+    probe_points: int = 8
+    probe_supersample: int = PROBE_SUPERSAMPLE  # usd_gs.relight.probe: 1, drawn at the probe size
+    probe_texture: tuple[int, int] = (32, 64)
+    relight_q: float = 1.0
+    relight_gamma: float = 1.0
+    relight_t_max: float = 8.0
+
+    def check(self) -> ProcessOptions:
+        if not 0.0 <= self.direct_fraction <= 1.0:
+            raise UserError(f"--direct-fraction must be in [0, 1], got {self.direct_fraction}")
+        if self.roi not in ("cone", "box", "all"):
+            raise UserError(f"roi must be 'cone', 'box' or 'all', got '{self.roi}'")
+        if self.probe_size < 4 or self.probe_degree < 0 or self.probe_degree > 3:
+            raise UserError("probe size must be >= 4 and probe degree 0..3")
+        if not 0 <= self.transfer_degree <= 8:
+            raise UserError(f"transfer degree must be 0..8, got {self.transfer_degree}")
+        if not 1 <= self.probe_points <= 64:
+            raise UserError(f"probe points must be 1..64, got {self.probe_points}")
+        if not 1 <= self.probe_supersample <= 4:
+            raise UserError(f"probe supersampling must be 1..4, got {self.probe_supersample}")
+        if self.lights not in ("auto", "stage"):
+            try:
+                k = int(self.lights)
+            except ValueError:
+                raise UserError(f"--lights must be 'auto', 'stage' or a number, got '{self.lights}'") from None
+            if not 1 <= k <= 16:
+                raise UserError(f"--lights {k}: estimate between 1 and 16 lights")
+        self.dgsm.validate()
+        return self
+
+
+#: DGSMConfig fields a config file may set (the rest are derived from the shot or internal).
+DGSM_KEYS = tuple(f.name for f in fields(DGSMConfig)
+                  if f.name not in ("t_max", "roi_percentiles", "roi_margin", "up_axis", "bin_skip"))
+#: ProcessOptions fields a config file may set (prim roles come from the stage or the command line).
+PROCESS_KEYS = tuple(f.name for f in fields(ProcessOptions)
+                     if f.name not in ("scene_paths", "avatar_paths", "object_paths", "dgsm", "default_light_count",
+                                       "probe_texture"))
+
+
+def load_config(path: str) -> dict:
+    """The JSON object of a ``--config`` file (keys checked against :data:`DGSM_KEYS` and
+    :data:`PROCESS_KEYS`); ``UserError`` naming the file for a missing file, invalid JSON, a
+    non-object or an unknown key."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise UserError(f"--config {path}: no such file") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(data, dict):
+        raise UserError(f"--config {path}: must hold a JSON object")
+    unknown = set(data) - set(DGSM_KEYS) - set(PROCESS_KEYS)
+    if unknown:
+        raise UserError(f"--config {path}: unknown option(s) {', '.join(sorted(unknown))}")
+    return data
+
+
+def dgsm_config(cfg: dict) -> DGSMConfig:
+    """The ``DGSMConfig`` of a loaded config dict (defaults for keys it does not set)."""
+    return DGSMConfig(**{k: cfg[k] for k in DGSM_KEYS if k in cfg})
+
+
+def process_kwargs(cfg: dict) -> dict:
+    """The ``ProcessOptions`` keyword arguments a loaded config dict sets."""
+    return {k: cfg[k] for k in PROCESS_KEYS if k in cfg}
