@@ -34,6 +34,7 @@ from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError, first_bad_index
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
+from usd_gs.usd import skel as _skel
 from usd_gs.usd.schema import RoleInfo, read_role, register_plugins
 
 register_plugins()
@@ -185,7 +186,7 @@ def _degree(prim: Usd.Prim) -> tuple[int, bool]:
 
 
 # --------------------------------------------------------------------------- reading
-def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True) -> GaussianSet:
+def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool = True) -> GaussianSet:
     """Read one Gaussian splat prim as a :class:`GaussianSet` labelled with the prim path.
 
     ``time``: ``Usd.TimeCode``/number/None (``Default``); time-sampled attributes are read
@@ -194,6 +195,11 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True) -> Gaussia
     ``usdgs:rawLogitOpacities`` fill ``log_scales``/``logit_opacities`` when their lengths
     match and they agree with ``scales``/``opacities`` (stale raw data is dropped with a
     warning); ``usdgs:ply:<field>`` fill ``extras[field]``.
+
+    A prim with a UsdSkel binding (``usd_gs.usd.skel``: ``UsdSkel.BindingAPI``, a skeleton with a
+    SkelAnimation) holds its bind pose; it is returned skinned at ``time`` (world space, or
+    prim-local with ``world=False``) unless ``skin=False`` (the authored bind pose, read as if
+    unbound). Raw log-scales are dropped from skinned sets.
 
     Unauthored ``opacities`` read as 1 (the schema rule); the arrays of a prim without a
     transform are read-only zero-copy views of USD memory (copy before editing in place).
@@ -267,6 +273,10 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True) -> Gaussia
 
     gs = GaussianSet(pos, orientations, scales, opac, sh_flat.reshape(n, k, 3), log_scales, logit_opacities,
                      extras, label=path)
+    if skin and n and _skel.has_skel_binding(prim):
+        # UsdSkel binding: the authored values are the bind pose; skin them (the prim's own transform
+        # is ignored, the skeleton's applies: usd_gs.usd.skel).
+        return _skel.read_skinned(prim, gs, tc, world=world)
     if world:
         m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc))
         if not np.array_equal(m, np.eye(4)):
@@ -348,7 +358,9 @@ class GaussianPrimInfo:
     true when positions/orientations/scales or the local-to-world transform may vary in
     time. ``world_bounds`` is (min, max), two (3,) float64 arrays: the world-space box of
     the prim-local ``extent`` at the described time (of the positions when no extent is
-    authored); None for an empty prim.
+    authored); None for an empty prim. A skinned prim (``usd_gs.usd.skel``) is ``animated``,
+    its ``time_samples`` include the SkelAnimation's, and its bounds are those of the skinned
+    centres at the described time grown by the rest extent's margin.
     """
 
     path: str
@@ -396,6 +408,12 @@ def describe_gaussian_prim(prim: Usd.Prim, time=None) -> GaussianPrimInfo:
             samples.extend((ts[0], ts[-1]))
         if xf.TransformMightBeTimeVarying():
             animated = True
+    skinned = count > 0 and _skel.has_skel_binding(prim)
+    if skinned:  # moving: the animation's samples count as the prim's
+        animated = True
+        rng = _skel.animation_range(prim)
+        if rng is not None:
+            samples.extend(rng)
     time_samples = (min(samples), max(samples)) if samples else None
 
     bounds = None
@@ -407,7 +425,11 @@ def describe_gaussian_prim(prim: Usd.Prim, time=None) -> GaussianPrimInfo:
     elif count:
         p = pos.astype(np.float64)
         local = np.stack([p.min(axis=0), p.max(axis=0)])
-    if local is not None and count:
+    if skinned and local is not None:
+        p = pos.astype(np.float64)
+        pad = np.maximum(np.maximum(p.min(axis=0) - local[0], local[1] - p.max(axis=0)), 0.0)
+        bounds = _skel.skinned_bounds(prim, p, pad, tc)
+    elif local is not None and count:
         m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc))
         corners = np.array([[local[i, 0], local[j, 1], local[k, 2], 1.0]
                             for i in (0, 1) for j in (0, 1) for k in (0, 1)])

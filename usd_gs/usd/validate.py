@@ -10,7 +10,9 @@ Added here: NaN/Inf in every data attribute and the extent, NaN in the raw ``usd
 attributes (where +-inf is a valid saturated PLY value);
 an extent that is not a finite ordered box or does not contain the positions; local-to-world
 transforms that are not finite similarity transforms (naming the prim whose own transform
-is at fault). With ``time=None`` every time sample of the prim's Gaussian attributes and
+is at fault); UsdSkel bindings (``usd_gs.usd.skel``: SkelRoot, skeleton with an animation,
+influence lengths, joint indices in range, weights summing to 1 within 1e-4). With
+``time=None`` every time sample of the prim's Gaussian attributes and
 transforms is checked (each sample vectorised); a problem repeated at several samples is
 reported once, at its first time.
 """
@@ -145,7 +147,31 @@ def validate_prim(prim: Usd.Prim, time=None) -> list[Problem]:
 
     for tc in _times(prim, time):
         _check_at(prim, tc, attrs, names, degree, col)
+    _check_binding(prim, time, attrs, col)
     return col.items
+
+
+def _check_binding(prim: Usd.Prim, time, attrs, col: _Collector) -> None:
+    """UsdSkel binding (usd_gs.usd.skel): SkelRoot, skeleton, animation, influence lengths, joint
+    indices in range, weights >= 0 summing to 1 within ``skel.WEIGHT_SUM_TOL``; checked at
+    ``time``, else at the animation's first and last samples (default time without samples)."""
+    from usd_gs.usd import skel
+
+    if not skel.has_skel_binding(prim):
+        return
+    pos = read_array(attrs[POSITIONS], Usd.TimeCode.EarliestTime()) if attrs[POSITIONS] is not None else None
+    if pos is None:
+        return
+    if time is not None:
+        times = [as_time(time)]
+    else:
+        try:
+            rng = skel.animation_range(prim)
+        except skel.BindingError:
+            rng = None
+        times = [Usd.TimeCode(t) for t in sorted(set(rng))] if rng else [Usd.TimeCode.Default()]
+    for attribute, message, element, t in skel.binding_problems(prim, len(pos), times):
+        col.add("skel", attribute, message, element, Usd.TimeCode.Default() if t is None else Usd.TimeCode(t))
 
 
 def _check_at(prim, tc, attrs, names, degree, col: _Collector) -> None:
