@@ -129,13 +129,12 @@ def roi_box_mask(points: np.ndarray, valid: np.ndarray, centre, radius: float, u
 # ----------------------------------------------------------------------------- pseudo ground truth
 def ray_intersector(vertices: np.ndarray, faces: np.ndarray):
     """An embree ray intersector over the triangle mesh (``vertices`` (V, 3) metres, ``faces``
-    (F, 3) int). ``UserError`` when trimesh's embree backend (embreex) is missing."""
-    import trimesh
-
+    (F, 3) int). ``UserError`` when trimesh or its embree backend (embreex) is missing."""
     try:
+        import trimesh
         from trimesh.ray.ray_pyembree import RayMeshIntersector
-    except ImportError:  # pragma: no cover - embreex is a dependency of the eval extra
-        raise UserError("mesh pseudo ground truth needs embreex (pip install 'usd-gs[eval]')") from None
+    except ImportError:  # pragma: no cover - both are dependencies of the eval extra
+        raise UserError("the mesh pseudo ground truth needs trimesh and embreex (pip install 'usd-gs[eval]')") from None
     mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
     return RayMeshIntersector(mesh)
 

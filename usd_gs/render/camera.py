@@ -33,6 +33,7 @@ import numpy as np
 
 from numba_kernels.cubemap_dirs import FACE_FRAMES, FACE_NAMES
 from usd_gs.errors import UserError
+from usd_gs.usd.frames import as_time
 
 # OpenGL cube-map faces, shared with numba_kernels/cubemap_dirs.py (a numpy-only module):
 # names +X, -X, +Y, -Y, +Z, -Z and (6, 3, 3) float64 (forward, right, down) per face.
@@ -111,13 +112,13 @@ class Camera:
         from ``clippingRange``. ``height`` defaults to ``width * vAperture / hAperture``.
         Orthographic cameras raise ``UserError``.
         """
-        from pxr import Gf, Usd, UsdGeom
+        from pxr import Gf, UsdGeom
 
         cam = UsdGeom.Camera(camera_prim)
         prim = cam.GetPrim()
         if not prim or not prim.IsA(UsdGeom.Camera):
             raise UserError(f"{camera_prim}: not a UsdGeom.Camera prim")
-        tc = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+        tc = as_time(time)
         gcam = cam.GetCamera(tc)
         path = str(prim.GetPath())
         if gcam.projection != Gf.Camera.Perspective:

@@ -36,6 +36,7 @@ from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
 from usd_gs.render import rasterize as _render
 from usd_gs.render.camera import Camera
+from usd_gs.usd.frames import as_time
 
 DEFAULT_WIDTH = 960
 FALLBACK_ASPECT = 16.0 / 9.0
@@ -73,11 +74,10 @@ def stage_label(stage) -> str:
 
 
 def _tc(frame):
+    """The frame's time code; None: the earliest time (the first sample of animated prims)."""
     from pxr import Usd
 
-    if frame is None:
-        return Usd.TimeCode.EarliestTime()
-    return frame if isinstance(frame, Usd.TimeCode) else Usd.TimeCode(float(frame))
+    return as_time(frame, Usd.TimeCode.EarliestTime())
 
 
 # ----------------------------------------------------------------------------- which Gaussians

@@ -9,6 +9,9 @@ Accepted forms (inclusive ends, USD time codes):
 
 Negative frames are written with the colon form (``-5:5``). Duplicates are removed and
 the result is sorted. ``None`` means the stage's start..end time codes.
+
+:func:`as_time` is the one conversion of a time argument (a ``Usd.TimeCode``, a number or
+None) to a ``Usd.TimeCode`` that every reader, renderer and writer uses.
 """
 
 from __future__ import annotations
@@ -65,3 +68,15 @@ def parse_frames(spec: str | None, start: float, end: float) -> list[float]:
         else:
             frames.add(_num(part, spec))
     return sorted(frames)
+
+
+def as_time(time, none=None):
+    """``Usd.TimeCode`` from a ``Usd.TimeCode`` (returned as is), a number, or None; None gives
+    ``none`` (a ``Usd.TimeCode``; default: ``Usd.TimeCode.Default()``, the unanimated value)."""
+    from pxr import Usd
+
+    if time is None:
+        return Usd.TimeCode.Default() if none is None else none
+    if isinstance(time, Usd.TimeCode):
+        return time
+    return Usd.TimeCode(float(time))
