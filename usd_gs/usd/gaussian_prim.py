@@ -35,6 +35,7 @@ from usd_gs.errors import GaussianDataError, InputFormatError, UserError, first_
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
 from usd_gs.usd import skel as _skel
+from usd_gs.usd.frames import as_time
 from usd_gs.usd.schema import RoleInfo, read_role, register_plugins
 
 register_plugins()
@@ -79,15 +80,6 @@ _EXTRA_TYPES = {
 
 
 # --------------------------------------------------------------------------- helpers
-def as_time(time) -> Usd.TimeCode:
-    """``Usd.TimeCode`` from a TimeCode, a number, or None (= ``Default``)."""
-    if time is None:
-        return Usd.TimeCode.Default()
-    if isinstance(time, Usd.TimeCode):
-        return time
-    return Usd.TimeCode(float(time))
-
-
 def _time_str(time: Usd.TimeCode) -> str:
     return "default time" if time.IsDefault() else f"time {time.GetValue():g}"
 
