@@ -141,7 +141,7 @@ def joint_influences(prim: Usd.Prim, n: int, time=None, where: str | None = None
     not N * elementSize, an index outside the joint order, weights not summing to 1 within
     :data:`WEIGHT_SUM_TOL`, non-finite or negative weights.
     """
-    from usd_gs.usd.gaussian_prim import as_time
+    from usd_gs.usd.frames import as_time
 
     tc = as_time(time)
     path = prim.GetPath().pathString
@@ -200,7 +200,7 @@ def evaluate_binding(prim: Usd.Prim, n: int, time=None, world: bool = True) -> S
     Raises :class:`BindingError` (a ``UserError``) naming the prim/skeleton and attribute: no SkelRoot, an
     invalid skeleton, a skeleton without animation, bad influences (:func:`joint_influences`).
     """
-    from usd_gs.usd.gaussian_prim import as_time
+    from usd_gs.usd.frames import as_time
 
     tc = as_time(time)
     path = prim.GetPath().pathString
