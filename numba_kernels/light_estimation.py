@@ -17,9 +17,9 @@ The steps, with the defaults of ``usd_gs.relight.light_estimation.LightEstimatio
    Cues: ``meanY_i`` and ``maxY_i`` over the V views; angular stability
    ``stab_i = clip(1 - std_v(Y_iv) / (meanY_i + 1e-12), 0, 1)`` (population std);
    DC dominance ``dom_i = |a|^2 / (|a|^2 + sum_{k>=1,c} sh_ikc^2 / (4 pi))`` with
-   ``a = 0.5 + C0 sh_i0`` the view-independent colour: the share of the sphere-averaged
+   ``a = 0.5 + SH_C0 sh_i0`` the view-independent colour: the share of the sphere-averaged
    squared colour that does not depend on the view (the SH basis is orthonormal, so the
-   view-dependent part has mean square ``sum c_k^2 / 4 pi``). Using ``0.5 + C0 f_dc`` instead
+   view-dependent part has mean square ``sum c_k^2 / 4 pi``). Using ``0.5 + SH_C0 f_dc`` instead
    of the raw ``f_dc`` keeps a grey Gaussian (f_dc = 0) from counting as pure view dependence.
    Degree 0 gives ``stab = dom = 1``.
 3. Luminance cue ``L_i = (1 - max_weight) meanY_i + max_weight maxY_i`` (max_weight 0.25).
@@ -72,22 +72,8 @@ from numba import njit, prange
 
 from .grid_neighbours import build_grid, grid_values, radius_sum
 from .jit_options import threaded
+from .sh_real import SH_C0, SH_C1, SH_C2, SH_C3
 from .thread_chunks import run_chunks
-
-C0 = 0.28209479177387814
-C1 = 0.4886025119029199
-C2_0 = 1.0925484305920792
-C2_1 = -1.0925484305920792
-C2_2 = 0.31539156525252005
-C2_3 = -1.0925484305920792
-C2_4 = 0.5462742152960396
-C3_0 = -0.5900435899266435
-C3_1 = 2.890611442640554
-C3_2 = -0.4570457994644658
-C3_3 = 0.3731763325901154
-C3_4 = -0.4570457994644658
-C3_5 = 1.445305721320277
-C3_6 = -0.5900435899266435
 
 LUMA = (0.2126, 0.7152, 0.0722)
 
@@ -103,13 +89,13 @@ def _sh_rgb(sh, i, deg, x, y, z):
     """``0.5 + SH_i(x, y, z)`` per channel, 3DGS basis and signs (unclamped, float64).
 
     The basis is evaluated once and shared by the three channels."""
-    r = 0.5 + C0 * np.float64(sh[i, 0, 0])
-    g = 0.5 + C0 * np.float64(sh[i, 0, 1])
-    b = 0.5 + C0 * np.float64(sh[i, 0, 2])
+    r = 0.5 + SH_C0 * np.float64(sh[i, 0, 0])
+    g = 0.5 + SH_C0 * np.float64(sh[i, 0, 1])
+    b = 0.5 + SH_C0 * np.float64(sh[i, 0, 2])
     if deg >= 1:
-        b1 = -C1 * y
-        b2 = C1 * z
-        b3 = -C1 * x
+        b1 = -SH_C1 * y
+        b2 = SH_C1 * z
+        b3 = -SH_C1 * x
         r += b1 * sh[i, 1, 0] + b2 * sh[i, 2, 0] + b3 * sh[i, 3, 0]
         g += b1 * sh[i, 1, 1] + b2 * sh[i, 2, 1] + b3 * sh[i, 3, 1]
         b += b1 * sh[i, 1, 2] + b2 * sh[i, 2, 2] + b3 * sh[i, 3, 2]
@@ -117,22 +103,22 @@ def _sh_rgb(sh, i, deg, x, y, z):
             xx = x * x
             yy = y * y
             zz = z * z
-            b4 = C2_0 * (x * y)
-            b5 = C2_1 * (y * z)
-            b6 = C2_2 * (2.0 * zz - xx - yy)
-            b7 = C2_3 * (x * z)
-            b8 = C2_4 * (xx - yy)
+            b4 = SH_C2[0] * (x * y)
+            b5 = SH_C2[1] * (y * z)
+            b6 = SH_C2[2] * (2.0 * zz - xx - yy)
+            b7 = SH_C2[3] * (x * z)
+            b8 = SH_C2[4] * (xx - yy)
             r += b4 * sh[i, 4, 0] + b5 * sh[i, 5, 0] + b6 * sh[i, 6, 0] + b7 * sh[i, 7, 0] + b8 * sh[i, 8, 0]
             g += b4 * sh[i, 4, 1] + b5 * sh[i, 5, 1] + b6 * sh[i, 6, 1] + b7 * sh[i, 7, 1] + b8 * sh[i, 8, 1]
             b += b4 * sh[i, 4, 2] + b5 * sh[i, 5, 2] + b6 * sh[i, 6, 2] + b7 * sh[i, 7, 2] + b8 * sh[i, 8, 2]
             if deg >= 3:
-                b9 = C3_0 * y * (3.0 * xx - yy)
-                b10 = C3_1 * (x * y) * z
-                b11 = C3_2 * y * (4.0 * zz - xx - yy)
-                b12 = C3_3 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
-                b13 = C3_4 * x * (4.0 * zz - xx - yy)
-                b14 = C3_5 * z * (xx - yy)
-                b15 = C3_6 * x * (xx - 3.0 * yy)
+                b9 = SH_C3[0] * y * (3.0 * xx - yy)
+                b10 = SH_C3[1] * (x * y) * z
+                b11 = SH_C3[2] * y * (4.0 * zz - xx - yy)
+                b12 = SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+                b13 = SH_C3[4] * x * (4.0 * zz - xx - yy)
+                b14 = SH_C3[5] * z * (xx - yy)
+                b15 = SH_C3[6] * x * (xx - 3.0 * yy)
                 r += (b9 * sh[i, 9, 0] + b10 * sh[i, 10, 0] + b11 * sh[i, 11, 0] + b12 * sh[i, 12, 0]
                       + b13 * sh[i, 13, 0] + b14 * sh[i, 14, 0] + b15 * sh[i, 15, 0])
                 g += (b9 * sh[i, 9, 1] + b10 * sh[i, 10, 1] + b11 * sh[i, 11, 1] + b12 * sh[i, 12, 1]
@@ -197,7 +183,7 @@ def _cues_one(i, positions, opacities, sh, deg, centroid, viewpoints, r2, min_op
     stability[i] = min(1.0, max(0.0, st))
     e_dc = 0.0
     for c in range(3):
-        dc = 0.5 + C0 * np.float64(sh[i, 0, c])
+        dc = 0.5 + SH_C0 * np.float64(sh[i, 0, c])
         e_dc += dc * dc
     tot = e_dc + e_view * inv4pi
     dominance[i] = e_dc / tot if tot > 0.0 else 0.0

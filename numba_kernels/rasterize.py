@@ -64,22 +64,8 @@ from numba import njit, prange
 
 from .jit_options import threaded
 from .quaternion import quat_to_rotation
+from .sh_real import SH_C0, SH_C1, SH_C2, SH_C3
 from .thread_chunks import run_chunks
-
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2_0 = 1.0925484305920792
-SH_C2_1 = -1.0925484305920792
-SH_C2_2 = 0.31539156525252005
-SH_C2_3 = -1.0925484305920792
-SH_C2_4 = 0.5462742152960396
-SH_C3_0 = -0.5900435899266435
-SH_C3_1 = 2.890611442640554
-SH_C3_2 = -0.4570457994644658
-SH_C3_3 = 0.3731763325901154
-SH_C3_4 = -0.4570457994644658
-SH_C3_5 = 1.445305721320277
-SH_C3_6 = -0.5900435899266435
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -205,15 +191,15 @@ def _sh_color(sh, g, dx, dy, dz):
         xy = dx * dy
         yz = dy * dz
         xz = dx * dz
-        basis = (SH_C2_0 * xy, SH_C2_1 * yz, SH_C2_2 * (2.0 * zz - xx - yy), SH_C2_3 * xz, SH_C2_4 * (xx - yy))
+        basis = (SH_C2[0] * xy, SH_C2[1] * yz, SH_C2[2] * (2.0 * zz - xx - yy), SH_C2[3] * xz, SH_C2[4] * (xx - yy))
         for m in range(5):
             r += basis[m] * sh[g, 4 + m, 0]
             gg += basis[m] * sh[g, 4 + m, 1]
             b += basis[m] * sh[g, 4 + m, 2]
         if k >= 16:
-            basis3 = (SH_C3_0 * dy * (3.0 * xx - yy), SH_C3_1 * xy * dz, SH_C3_2 * dy * (4.0 * zz - xx - yy),
-                      SH_C3_3 * dz * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3_4 * dx * (4.0 * zz - xx - yy),
-                      SH_C3_5 * dz * (xx - yy), SH_C3_6 * dx * (xx - 3.0 * yy))
+            basis3 = (SH_C3[0] * dy * (3.0 * xx - yy), SH_C3[1] * xy * dz, SH_C3[2] * dy * (4.0 * zz - xx - yy),
+                      SH_C3[3] * dz * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3[4] * dx * (4.0 * zz - xx - yy),
+                      SH_C3[5] * dz * (xx - yy), SH_C3[6] * dx * (xx - 3.0 * yy))
             for m in range(7):
                 r += basis3[m] * sh[g, 9 + m, 0]
                 gg += basis3[m] * sh[g, 9 + m, 1]

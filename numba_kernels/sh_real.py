@@ -38,6 +38,15 @@ from .jit_options import prange_only
 
 MAX_DEGREE = 8
 
+# The 3DGS basis of graphdeco-inria ``sh_utils.py`` (degree <= 3; band 1 is ``-C1 y, +C1 z, -C1 x``,
+# ``Y3dgs_lm = (-1)^m Y_lm``): the constants the kernels that evaluate Gaussian colours
+# (``0.5 + SH(dir)``) use; numba freezes module-level floats and tuples at compile time.
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
+         1.445305721320277, -0.5900435899266435)
+
 
 def num_coeffs(degree: int) -> int:
     """``(degree + 1) ** 2``."""

@@ -34,10 +34,9 @@ import numpy as np
 from numba import njit, prange
 
 from .jit_options import prange_only, threaded
-from .sh_real import NORM, band_of_index, cosine_lobe_band_factors, degree_from_num_coeffs, sh_eval_batch
+from .sh_real import NORM, SH_C0, band_of_index, cosine_lobe_band_factors, degree_from_num_coeffs, sh_eval_batch
 from .thread_chunks import run_chunks
 
-C0_3DGS = 0.28209479177387814
 _CHUNK = 256
 
 
@@ -273,5 +272,5 @@ def relight_sh_coefficients(sh: np.ndarray, scale: np.ndarray, gamma: float = 1.
     out = np.empty_like(sh)
     sh = sh.view()
     sh.flags.writeable = False  # one kernel specialisation whether or not the caller's array is read-only
-    _relight_kernel(sh, scale, float(gamma), C0_3DGS, out)
+    _relight_kernel(sh, scale, float(gamma), SH_C0, out)
     return out

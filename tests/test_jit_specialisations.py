@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from numba_kernels import rasterize, sh_transfer
+from numba_kernels import rasterize, sh_real, sh_transfer
 from numba_kernels.sh_transfer import relight_sh_coefficients
 
 
@@ -20,7 +20,7 @@ def test_relight_one_specialisation_for_readonly_and_writable_inputs():
     np.testing.assert_array_equal(a, b)
     # reference: sh'_0 = (f (0.5 + C0 sh_0) - 0.5) / C0, sh'_k = f sh_k
     f = 1.5 * scale.astype(np.float64)
-    c0 = sh_transfer.C0_3DGS
+    c0 = sh_real.SH_C0
     np.testing.assert_allclose(a[:, 0], (f * (0.5 + c0 * sh[:, 0]) - 0.5) / c0, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(a[:, 1:], f[:, None, :] * sh[:, 1:], rtol=1e-6)
     assert len(sh_transfer._relight_kernel.signatures) == 1
