@@ -25,7 +25,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "sh_to_latlong": "envmap",
     "write_cube_faces_latlong": "envmap",
     "write_exr": "envmap",
-    "write_probe_latlong": "envmap",
     "AnimationChannel": "gltf",
     "SkinnedMesh": "gltf",
     "load_skinned_mesh": "gltf",

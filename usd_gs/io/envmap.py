@@ -296,11 +296,6 @@ def write_exr(path, img: np.ndarray, half: bool = False, latlong: bool = True) -
     return path
 
 
-def write_probe_latlong(path, coeffs: np.ndarray, basis: str = "3dgs", h: int = 128, w: int = 256) -> Path:
-    """Lat-long OpenEXR of the environment reconstructed from probe coefficients (K, 3)."""
-    return write_exr(path, sh_to_latlong(coeffs, h, w, basis))
-
-
 def write_cube_faces_latlong(path, faces: np.ndarray, h: int = 256, w: int = 512) -> Path:
     """Lat-long OpenEXR of raw cube faces (6, S, S, 3)."""
     return write_exr(path, cube_faces_to_latlong(faces, h, w))

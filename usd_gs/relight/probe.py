@@ -43,19 +43,12 @@ box-filters them down, so that a lamp a few texels wide is integrated over each 
 sampled at its centre; measured benefit and cost in :func:`render_probe_faces`."""
 
 
-def _signs_rh_3dgs(k: int) -> np.ndarray:
-    """(-1)^m per coefficient: ``Y3dgs = sign * Yrh`` (see ``numba_kernels.sh_real``)."""
-    degree = sh3dgs.degree_from_num_coeffs(k)
-    m = np.concatenate([np.arange(-l, l + 1) for l in range(degree + 1)])
-    return np.where(m % 2 == 0, 1.0, -1.0)
-
-
 def rh_to_3dgs(coeffs: np.ndarray) -> np.ndarray:
-    """(K, C) RH coefficients -> 3DGS basis (degree <= 3); same as ``numba_kernels.sh_real.rh_to_3dgs``."""
-    c = np.asarray(coeffs, dtype=np.float64)
-    if c.shape[0] > 16:
-        raise ValueError(f"the 3DGS SH basis exists for degree 0..3 only, got {c.shape[0]} coefficients")
-    return c * _signs_rh_3dgs(c.shape[0])[:, None]
+    """(K, C) RH coefficients -> 3DGS basis (degree <= 3): ``numba_kernels.sh_real.rh_to_3dgs``
+    (imported here, not at module level, so that importing this module does not import numba)."""
+    from numba_kernels.sh_real import rh_to_3dgs as convert
+
+    return convert(coeffs)
 
 
 threedgs_to_rh = rh_to_3dgs  # the sign flip is an involution
