@@ -2,39 +2,65 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import sys
 
 from usd_gs.errors import UserError
 
-READERS = {".ply": "ply", ".spz": "spz"}
+READ_HELP = ".ply, .compressed.ply, .splat, .spz, .sog, meta.json, lod-meta.json or a SOG folder"
 
 
-def read_gaussian_file(path: str):
-    """Read a ``.ply`` (INRIA 3DGS) or ``.spz`` file into a ``GaussianSet``."""
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in READERS:
-        raise UserError(f"{path}: unsupported input type '{ext or 'no extension'}' (expected .ply or .spz)")
-    if not os.path.exists(path):
-        raise UserError(f"{path}: no such file")
-    if ext == ".ply":
-        from usd_gs.io.ply import read_ply
-        return read_ply(path)
-    from usd_gs.io.spz import read_spz
-    return read_spz(path)
+def read_gaussian_file(path: str, lod: int | None = None):
+    """Read any capture ``usdgs import`` accepts (``usd_gs.io.formats.read_capture``)."""
+    from usd_gs.io.formats import read_capture
+
+    return read_capture(path, lod=lod)
 
 
 def default_prim_path(input_path: str) -> str:
-    """``/<stem>`` with characters that USD does not allow in names replaced by '_'."""
-    stem = re.sub(r"[^A-Za-z0-9_]", "_", os.path.splitext(os.path.basename(input_path))[0]) or "Gaussians"
+    """``/<stem>`` with characters that USD does not allow in names replaced by '_'.
+
+    Capture suffixes (``.compressed.ply``, ``.sog``...) and frame tokens are left out; a SOG
+    ``meta.json``/``lod-meta.json`` is named after its folder."""
+    base = os.path.basename(os.path.normpath(input_path))
+    if base.lower() in ("meta.json", "lod-meta.json"):
+        base = os.path.basename(os.path.dirname(os.path.abspath(input_path))) or base
+    for suffix in (".compressed.ply",):
+        if base.lower().endswith(suffix):
+            base = base[: -len(suffix)]
+    stem = os.path.splitext(base)[0]
+    stem = re.sub(r"[#]+|%0?\d*d", "", stem).rstrip("_.-") or stem
+    stem = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "Gaussians"
     if stem[0].isdigit():
         stem = "_" + stem
     return "/" + stem
 
 
 # ----------------------------------------------------------------------------- import
+def _import_sequence(args, stage, path) -> str:
+    from usd_gs.io.sequence import parse_frames, read_sequence, sequence_paths
+    from usd_gs.usd.schema import apply_role
+    from usd_gs.usd.sequence_prim import write_sequence_prim
+
+    if args.brick_size is not None:
+        raise UserError("--brick-size does not apply to a frame sequence")
+    frames = parse_frames(args.frames) if args.frames else None
+    paths = sequence_paths(args.input, frames)  # fails on the first missing file before any read
+    info = write_sequence_prim(stage, str(path), read_sequence(args.input, (paths[0][0], paths[-1][0]), args.lod),
+                               keep_raw=not args.no_raw, precision=args.precision, fps=args.fps)
+    if args.role:
+        apply_role(stage.GetPrimAtPath(path), args.role)
+    counts = (f"{info.counts[0]:,}" if min(info.counts) == max(info.counts)
+              else f"{min(info.counts):,}..{max(info.counts):,}")
+    return (f"{path} with {len(info.frames)} frames {info.frames[0]}-{info.frames[-1]} at {args.fps:g} fps, "
+            f"{counts} Gaussians per frame, SH degree {info.sh_degree}, {args.precision} precision; "
+            f"animated: {', '.join(info.animated) or 'none'}")
+
+
 def cmd_import(args) -> int:
+    from usd_gs.io.sequence import is_pattern
     from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
     from usd_gs.usd.schema import apply_role
     from usd_gs.usd.stage import check_usd_output_path, prim_path
@@ -43,11 +69,22 @@ def cmd_import(args) -> int:
     path = prim_path(args.prim or default_prim_path(args.input))
     if os.path.abspath(args.output) == os.path.abspath(args.input):
         raise UserError(f"{args.output}: output would overwrite the input")
-    # The readers reject NaN/Inf, zero quaternions and out-of-range values naming the
-    # field and element, so no second validation pass is needed here.
-    gaussians = read_gaussian_file(args.input)
+    if args.lod is not None and args.lod < 0:
+        raise UserError(f"--lod {args.lod}: must be >= 0 (0 is the finest level)")
+    sequence = is_pattern(args.input)
+    if args.frames and not sequence:
+        raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
     root = path.GetPrefixes()[0]
     stage = new_stage(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
+    if sequence:
+        what = _import_sequence(args, stage, path)
+        save_stage_atomic(stage, args.output)
+        if not args.quiet:
+            print(f"wrote {args.output}: {what}")
+        return 0
+    # The readers reject NaN/Inf, zero quaternions and out-of-range values naming the
+    # field and element, so no second validation pass is needed here.
+    gaussians = read_gaussian_file(args.input, args.lod)
     bricks = ""
     if args.brick_size is not None:
         from usd_gs.usd.bricks import write_bricked
@@ -68,17 +105,30 @@ def cmd_import(args) -> int:
 
 def register_import(sub, formatter):
     p = sub.add_parser("import", formatter_class=formatter,
-                       help="convert a 3DGS .ply or .spz file into a USD stage",
-                       description="Convert an INRIA 3DGS .ply (SH degree 0..3) or a Niantic .spz file into a "
-                                   "USD stage holding one UsdVol.ParticleField3DGaussianSplat prim. The raw PLY "
+                       help="convert a 3DGS capture (.ply, .compressed.ply, .splat, .spz, SOG) or a frame "
+                            "sequence into a USD stage",
+                       description="Convert a 3DGS capture into a USD stage holding one "
+                                   "UsdVol.ParticleField3DGaussianSplat prim. Formats: INRIA .ply (SH degree "
+                                   "0..3), PlayCanvas .compressed.ply, antimatter15 .splat, Niantic .spz, SOG "
+                                   "(bundled .sog, a meta.json folder, or a LOD set lod-meta.json: --lod picks "
+                                   "the level). An input with a frame token (name_####.sog, name_%04d.ply) is a "
+                                   "sequence: one prim with one time sample per frame (attributes equal in every "
+                                   "frame are authored once); counts may change between frames. The raw PLY "
                                    "log-scales, opacity logits and extra fields are kept as usdgs: attributes so "
                                    "'usdgs export' gives the PLY back bit for bit. The data is not rotated: "
                                    "--up-axis only sets the stage's upAxis metadata.")
-    p.add_argument("input", help="input .ply or .spz file")
+    p.add_argument("input", help=f"input capture ({READ_HELP}), or a frame pattern of them")
     p.add_argument("-o", "--output", required=True, help="output stage (.usd/.usdc binary, .usda text)")
     p.add_argument("--prim", help="prim path of the Gaussians (default: /<input file stem>)")
     p.add_argument("--role", choices=("auto", "scene", "avatar", "object"),
                    help="apply UsdGsRoleAPI with this usdgs:role (default: not applied, role auto)")
+    p.add_argument("--lod", type=int, metavar="N",
+                   help="level of a SOG LOD set (0 = finest; default: the finest level whose chunks are all "
+                        "present)")
+    p.add_argument("--frames", metavar="A-B",
+                   help="frames of a sequence pattern (default: every frame found on disk); a missing file "
+                        "is an error")
+    p.add_argument("--fps", type=float, default=24.0, help="frames per second of a sequence (timeCodesPerSecond)")
     p.add_argument("--up-axis", choices=("Y", "Z"), default="Y", help="stage upAxis metadata")
     p.add_argument("--meters-per-unit", type=float, default=1.0, help="stage metersPerUnit metadata")
     p.add_argument("--precision", choices=("float", "half"), default="float",
@@ -93,33 +143,101 @@ def register_import(sub, formatter):
 
 
 # ----------------------------------------------------------------------------- export
-def cmd_export(args) -> int:
-    from usd_gs.io.ply import write_ply
-    from usd_gs.usd.gaussian_prim import read_gaussian_prim
-    from usd_gs.usd.stage import gaussian_prim, open_stage, time_code
+def _export_prims(stage, args, time):
+    """The Gaussian prims to export: the --prim ones, else every visible one."""
+    from pxr import UsdGeom
 
-    if os.path.splitext(args.output)[1].lower() != ".ply":
-        raise UserError(f"{args.output}: output must be a .ply file")
+    from usd_gs.usd.gaussian_prim import find_gaussian_prims
+    from usd_gs.usd.stage import gaussian_prim
+
+    if not args.prim:
+        prims = [p for p in find_gaussian_prims(stage)
+                 if UsdGeom.Imageable(p).ComputeVisibility(time) != UsdGeom.Tokens.invisible]
+        if not prims:
+            raise UserError(f"{args.stage}: no visible Gaussian prim to export")
+        return prims
+    return [gaussian_prim(stage, text, args.stage) for text in args.prim]
+
+
+def _export_frames(stage, args) -> list:
+    """``[(time code, output path)]``."""
+    from pxr import Usd
+
+    from usd_gs.io.sequence import frame_path, is_pattern, parse_frames
+    from usd_gs.usd.stage import time_code
+
+    pattern = is_pattern(args.output)
+    if args.frames:
+        if args.time is not None:
+            raise UserError("give --time or --frames, not both")
+        a, b = parse_frames(args.frames)
+        if b > a and not pattern:
+            raise UserError(f"{args.output}: several frames need a frame token in the output name "
+                            "(out_####.splat or out_%04d.ply)")
+        return [(Usd.TimeCode(float(f)), frame_path(args.output, f)) for f in range(a, b + 1)]
+    if pattern and args.time is None:
+        a, b = stage.GetStartTimeCode(), stage.GetEndTimeCode()
+        if stage.HasAuthoredTimeCodeRange() and b >= a:
+            frames = range(math.floor(a), math.floor(b) + 1)
+            return [(Usd.TimeCode(float(f)), frame_path(args.output, f)) for f in frames]
+    tc = time_code(args.time)
+    t = tc.GetValue() if not (tc.IsDefault() or tc.IsEarliestTime()) else 0
+    return [(tc, frame_path(args.output, int(round(t))) if pattern else args.output)]
+
+
+def cmd_export(args) -> int:
+    from usd_gs.gaussians import GaussianSet
+    from usd_gs.io.formats import WRITE_EXTS, write_capture
+    from usd_gs.usd.gaussian_prim import read_gaussian_prim
+    from usd_gs.usd.stage import open_stage
+
+    ext = os.path.splitext(args.output)[1].lower()
+    if ext not in WRITE_EXTS:
+        raise UserError(f"{args.output}: output must end in {', '.join(WRITE_EXTS)} (got '{ext or 'no extension'}')")
+    parent = os.path.dirname(os.path.abspath(args.output))
+    if not os.path.isdir(parent):
+        raise UserError(f"{args.output}: output directory {parent} does not exist")
     stage = open_stage(args.stage)
-    prim = gaussian_prim(stage, args.prim, args.stage)
-    gaussians = read_gaussian_prim(prim, time_code(args.time), world=not args.local)
-    write_ply(args.output, gaussians)
+    frames = _export_frames(stage, args)
+    prims = _export_prims(stage, args, frames[0][0])
+    if args.local and len(prims) != 1:
+        raise UserError("--local needs exactly one Gaussian prim (prim-local spaces cannot be merged)")
+    total = 0
+    for tc, out in frames:
+        sets = [read_gaussian_prim(prim, tc, world=not args.local) for prim in prims]
+        g = sets[0] if len(sets) == 1 else GaussianSet.concatenate(sets, label=args.stage)
+        write_capture(out, g)
+        total += g.count
     if not args.quiet:
         space = "prim-local" if args.local else "world"
-        print(f"wrote {args.output}: {gaussians.count:,} Gaussians from {args.prim} ({space} space)")
+        names = ", ".join(str(p.GetPath()) for p in prims[:4]) + (" ..." if len(prims) > 4 else "")
+        if len(frames) == 1:
+            print(f"wrote {frames[0][1]}: {total:,} Gaussians from {names} ({space} space)")
+        else:
+            print(f"wrote {len(frames)} files {frames[0][1]} .. {frames[-1][1]}: {total:,} Gaussians in all "
+                  f"from {len(prims)} prim(s) {names} ({space} space)")
     return 0
 
 
 def register_export(sub, formatter):
-    p = sub.add_parser("export", formatter_class=formatter, help="write one Gaussian prim to an INRIA .ply",
-                       description="Write the Gaussians of one prim at one time code to an INRIA 3DGS .ply, "
-                                   "in world space (the prim's transforms applied) unless --local.")
+    p = sub.add_parser("export", formatter_class=formatter,
+                       help="write Gaussian prims to .ply, .splat or .spz files for splat viewers",
+                       description="Write the Gaussians of the listed prims (default: every visible Gaussian prim, "
+                                   "merged) in world space (the prims' transforms applied; --local for one prim "
+                                   "in its own space) to an INRIA .ply, an antimatter15 .splat or an .spz, one "
+                                   "file per frame. On an output of 'usdgs process' the processed (shadowed, "
+                                   "relit) SH is what is written. With --frames A-B (or a frame token in -o and "
+                                   "no --time: the stage's whole time range) the output name needs a frame token: "
+                                   "out_####.splat.")
     p.add_argument("stage", help="input USD stage")
-    p.add_argument("--prim", required=True, help="path of the ParticleField3DGaussianSplat prim")
+    p.add_argument("--prim", action="append",
+                   help="a ParticleField3DGaussianSplat prim to export (repeatable; default: every visible Gaussian "
+                        "prim)")
     p.add_argument("--time", default=None,
                    help="time code: a number, 'default' or 'earliest' (default: earliest, the first frame)")
-    p.add_argument("--local", action="store_true", help="export in prim-local space")
-    p.add_argument("-o", "--output", required=True, help="output .ply")
+    p.add_argument("--frames", metavar="A-B", help="export frames A..B, one file each")
+    p.add_argument("--local", action="store_true", help="export in prim-local space (one prim only)")
+    p.add_argument("-o", "--output", required=True, help="output .ply, .splat or .spz (with '####' for frames)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=cmd_export)
 

@@ -1,0 +1,94 @@
+"""One entry point for every capture format: :func:`read_capture` and :func:`write_capture`.
+
+Readable: INRIA ``.ply``, PlayCanvas ``.compressed.ply`` (recognised by its header, whatever
+the name), antimatter15 ``.splat``, Niantic ``.spz``, SOG (bundled ``.sog``, ``meta.json``,
+LOD sets ``lod-meta.json``, or a folder holding one of those). Writable: ``.ply``, ``.splat``,
+``.spz``. No axis conversion is applied by any of them (SPZ is read and written in its native
+frame, as PlayCanvas splat-transform does).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from usd_gs.errors import InputFormatError, UserError
+from usd_gs.gaussians import GaussianSet
+
+READ_KINDS = ("ply", "compressed-ply", "splat", "spz", "sog")
+WRITE_EXTS = (".ply", ".splat", ".spz")
+READ_HELP = ".ply, .compressed.ply, .splat, .spz, .sog, meta.json, lod-meta.json or a SOG folder"
+
+
+def capture_kind(path) -> str:
+    """The reader for ``path``: one of :data:`READ_KINDS`; ``UserError`` for anything else."""
+    p = Path(path)
+    name = p.name.lower()
+    if p.is_dir():
+        if (p / "lod-meta.json").is_file() or (p / "meta.json").is_file():
+            return "sog"
+        raise UserError(f"{path}: folder holds neither lod-meta.json nor meta.json (not a SOG folder)")
+    if name.endswith(".compressed.ply"):
+        return "compressed-ply"
+    if name.endswith(".ply"):
+        from usd_gs.io.compressed_ply import is_compressed_ply
+
+        return "compressed-ply" if p.is_file() and is_compressed_ply(p) else "ply"
+    if name.endswith(".splat"):
+        return "splat"
+    if name.endswith(".spz"):
+        return "spz"
+    if name.endswith(".sog") or name.endswith(".json"):
+        return "sog"
+    raise UserError(f"{path}: unsupported input type '{p.suffix or 'no extension'}' (expected {READ_HELP})")
+
+
+def read_capture(path, lod: int | None = None) -> GaussianSet:
+    """Read any supported capture (module docstring) into a :class:`GaussianSet`.
+
+    ``lod`` selects a level of a SOG LOD set (None: the finest complete level); given for
+    another format other than 0 it is an error. Bad input raises :class:`UserError`
+    (:class:`InputFormatError`) naming the file and the field.
+    """
+    kind = capture_kind(path)
+    if not Path(path).exists():
+        raise InputFormatError(f"{path}: no such file")
+    if lod not in (None, 0) and kind != "sog":
+        raise UserError(f"{path}: --lod {lod} only applies to SOG LOD sets (lod-meta.json)")
+    if kind == "ply":
+        from usd_gs.io.ply import read_ply
+
+        return read_ply(path)
+    if kind == "compressed-ply":
+        from usd_gs.io.compressed_ply import read_compressed_ply
+
+        return read_compressed_ply(path)
+    if kind == "splat":
+        from usd_gs.io.splat import read_splat
+
+        return read_splat(path)
+    if kind == "spz":
+        from usd_gs.io.spz import read_spz
+
+        return read_spz(path)
+    from usd_gs.io.sog import read_sog
+
+    return read_sog(path, lod=lod)
+
+
+def write_capture(path, gaussians: GaussianSet) -> None:
+    """Write ``gaussians`` as ``.ply`` (INRIA), ``.splat`` or ``.spz`` (v3) by extension, atomically."""
+    ext = Path(path).suffix.lower()
+    if ext == ".ply":
+        from usd_gs.io.ply import write_ply
+
+        write_ply(path, gaussians)
+    elif ext == ".splat":
+        from usd_gs.io.splat import write_splat
+
+        write_splat(path, gaussians)
+    elif ext == ".spz":
+        from usd_gs.io.spz import write_spz
+
+        write_spz(path, gaussians)
+    else:
+        raise UserError(f"{path}: output must end in {', '.join(WRITE_EXTS)}")

@@ -1,0 +1,421 @@
+"""Read PlayCanvas SOG files (version 2): bundled ``.sog``, ``meta.json`` folders, LOD sets.
+
+Quantisation: positions 16 bits per axis of ``sign(x) ln(|x| + 1)`` between min and max;
+log-scales and DC colour 8-bit indices into 256-entry codebooks; opacity 8 bits linear;
+quaternions smallest-three 8 bits; SH bands 1..3 an (up to 64k)-entry palette of 8-bit
+codebook indices.
+
+Layout (all images lossless WebP, RGBA, one pixel per Gaussian in row-major order; only the
+first ``count`` pixels are used):
+
+- ``meta.json``: ``version`` 2, ``count``, ``means {mins, maxs, files: [lo, hi]}``,
+  ``scales {codebook, files}``, ``quats {files}``, ``sh0 {codebook, files}`` and optionally
+  ``shN {count, bands, codebook, files: [centroids, labels]}``.
+- means: ``u = lo.rgb | hi.rgb << 8`` (16 bits), ``v = min + (max - min) * u / 65535`` (a zero
+  range counts as 1), position ``sign(v) (exp|v| - 1)``.
+- quats: r, g, b are the three smaller components ``(b/255*2 - 1) / sqrt(2)`` in (w, x, y, z)
+  order with the largest left out; alpha ``252 + index`` of the largest, rebuilt positive.
+- scales: r, g, b index ``scales.codebook`` (natural-log sigma).
+- sh0: r, g, b index ``sh0.codebook`` (the raw ``f_dc``); alpha is the linear opacity * 255.
+- shN: labels image ``label = r | g << 8``; centroids image is ``64 * (K-1)`` pixels wide,
+  palette entry ``label`` at row ``label // 64``, columns ``(label % 64) * (K-1) + j`` hold
+  coefficient ``j + 1`` as r, g, b indices into ``shN.codebook``.
+- bundled ``.sog``: a zip holding ``meta.json`` and the images it names.
+- LOD sets: ``lod-meta.json`` with ``lodLevels``, ``filenames`` (each a SOG ``meta.json``
+  relative to it) and a ``tree`` whose nodes' ``lods`` map a level to ``{file, offset,
+  count}``; level ``L`` is the concatenation, in file-index order, of the files it references.
+  Level 0 is the finest.
+
+Mapping to :class:`usd_gs.gaussians.GaussianSet`: ``log_scales`` are the codebook values
+(``scales = exp``), ``opacities = alpha / 255``, quaternions normalised in float64, ``sh`` the
+codebook values (DC raw, bands channel-major in the file, coefficient-major here); values
+computed in float64 and rounded once to float32, as PlayCanvas splat-transform decodes them.
+SOG stores PLY-convention coordinates (no axis change is applied).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+import zlib
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from usd_gs.errors import InputFormatError, first_bad_index
+from usd_gs.gaussians import GaussianSet
+from usd_gs.io.ply import _LOG_SCALE_MAX, scales_from_log
+
+_SH_REST = {1: 3, 2: 8, 3: 15}
+
+
+# ------------------------------------------------------------------------------ containers
+class _Source:
+    """Files of one SOG (``meta.json`` and its images) in a folder or a zip archive."""
+
+    def __init__(self, label: str, folder: Path | None = None, archive: zipfile.ZipFile | None = None,
+                 prefix: str = ""):
+        self.label = label
+        self.folder = folder
+        self.archive = archive
+        self.prefix = prefix
+
+    def read(self, name: str) -> bytes:
+        if self.archive is not None:
+            member = str(PurePosixPath(self.prefix) / name) if self.prefix else name
+            try:
+                return self.archive.read(member)
+            except KeyError:
+                raise InputFormatError(f"{self.label}: archive has no member '{member}'") from None
+            except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError) as exc:
+                raise InputFormatError(f"{self.label}: archive member '{member}' is corrupt ({exc})") from None
+        p = self.folder / name
+        try:
+            return p.read_bytes()
+        except FileNotFoundError:
+            raise InputFormatError(f"{self.label}: missing file {p}") from None
+        except OSError as exc:
+            raise InputFormatError(f"{self.label}: cannot read {p} ({exc})") from None
+
+
+def _open_zip(label: str, path: Path) -> zipfile.ZipFile:
+    try:
+        return zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        raise InputFormatError(f"{label}: not a readable .sog zip archive ({exc})") from None
+
+
+# ----------------------------------------------------------------------------------- meta
+def _field(label: str, meta, dotted: str, kind):
+    cur = meta
+    for part in dotted.split("."):
+        if not isinstance(cur, dict) or part not in cur:
+            raise InputFormatError(f"{label}: meta.json lacks field '{dotted}'")
+        cur = cur[part]
+    ok = {
+        "int": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+        "vec3": lambda v: (isinstance(v, list) and len(v) == 3
+                           and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+                                   for x in v)),
+        "codebook": lambda v: (isinstance(v, list) and 0 < len(v) <= 256
+                               and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+                                       for x in v)),
+        "files": lambda v: isinstance(v, list) and len(v) >= 1 and all(isinstance(x, str) and x for x in v),
+    }[kind]
+    if not ok(cur):
+        what = {"int": "a non-negative integer", "vec3": "a list of 3 finite numbers",
+                "codebook": "a list of 1..256 finite numbers", "files": "a list of file names"}[kind]
+        raise InputFormatError(f"{label}: meta.json field '{dotted}' is not {what}")
+    return cur
+
+
+def _parse_meta(label: str, data: bytes) -> dict:
+    try:
+        meta = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputFormatError(f"{label}: meta.json is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise InputFormatError(f"{label}: meta.json is not a JSON object")
+    if "version" not in meta:
+        raise InputFormatError(f"{label}: meta.json lacks field 'version' (SOG version 1 files are not supported; "
+                               "convert them with splat-transform)")
+    if meta["version"] != 2:
+        raise InputFormatError(f"{label}: meta.json field 'version' is {meta['version']!r}; only 2 is supported")
+    return meta
+
+
+# ---------------------------------------------------------------------------------- images
+def _decode_webp(label: str, name: str, data: bytes, need: int) -> np.ndarray:
+    """(H*W, 4) uint8 RGBA pixels of a WebP image holding at least ``need`` pixels."""
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            if im.format != "WEBP":
+                raise InputFormatError(f"{label}: image '{name}' is {im.format or 'not an image'}, not WebP")
+            w, h = im.size
+            if w * h < need:
+                raise InputFormatError(f"{label}: image '{name}' is {w}x{h} = {w * h} pixels, fewer than "
+                                       f"meta.json 'count' {need}")
+            px = np.asarray(im.convert("RGBA"))
+    except InputFormatError:
+        raise
+    except Exception as exc:  # Pillow raises many types (OSError, SyntaxError, ValueError...) on corrupt data
+        raise InputFormatError(f"{label}: image '{name}' does not decode as WebP ({type(exc).__name__}: "
+                               f"{str(exc).splitlines()[0] if str(exc) else 'corrupt'})") from None
+    return px.reshape(-1, 4), w, h
+
+
+def _lookup(label: str, field: str, codebook: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    if idx.size and int(idx.max()) >= len(codebook):
+        i = first_bad_index(idx >= len(codebook))
+        raise InputFormatError(f"{label}: '{field}' index {int(idx.reshape(len(idx), -1)[i].max())} at Gaussian {i} "
+                               f"is past the {len(codebook)}-entry codebook")
+    return codebook[idx]
+
+
+# ---------------------------------------------------------------------------------- decode
+class _Plan:
+    """A parsed meta.json: what to decode (images, codebooks) for one SOG unit."""
+
+    def __init__(self, src: _Source):
+        label = self.label = src.label
+        self.src = src
+        meta = _parse_meta(label, src.read("meta.json"))
+        self.count = n = _field(label, meta, "count", "int")
+        self.mins = np.asarray(_field(label, meta, "means.mins", "vec3"), np.float64)
+        self.maxs = np.asarray(_field(label, meta, "means.maxs", "vec3"), np.float64)
+        mfiles = _field(label, meta, "means.files", "files")
+        if len(mfiles) < 2:
+            raise InputFormatError(f"{label}: meta.json field 'means.files' needs 2 files (low and high bytes)")
+        self.scb = np.asarray(_field(label, meta, "scales.codebook", "codebook"), np.float32)
+        self.qfile = _field(label, meta, "quats.files", "files")[0]
+        self.ccb = np.asarray(_field(label, meta, "sh0.codebook", "codebook"), np.float32)
+        self.jobs = {"means_l": (mfiles[0], n), "means_u": (mfiles[1], n), "quats": (self.qfile, n),
+                     "scales": (_field(label, meta, "scales.files", "files")[0], n),
+                     "sh0": (_field(label, meta, "sh0.files", "files")[0], n)}
+        shn = meta.get("shN")
+        self.bands = 0
+        if shn is not None:
+            self.bands = _field(label, meta, "shN.bands", "int")
+            if self.bands not in (0, 1, 2, 3):
+                raise InputFormatError(f"{label}: meta.json field 'shN.bands' is {self.bands}; expected 1, 2 or 3")
+        if self.bands:
+            self.palette = _field(label, meta, "shN.count", "int")
+            self.hcb = np.asarray(_field(label, meta, "shN.codebook", "codebook"), np.float32)
+            self.hfiles = _field(label, meta, "shN.files", "files")
+            if len(self.hfiles) < 2:
+                raise InputFormatError(f"{label}: meta.json field 'shN.files' needs 2 files (centroids and labels)")
+            self.jobs["centroids"] = (self.hfiles[0], 0)
+            self.jobs["labels"] = (self.hfiles[1], n)
+
+    def load(self) -> dict:
+        """The raw bytes of every image (read in the calling thread: zip files are not thread-safe)."""
+        return {key: self.src.read(name) for key, (name, _) in self.jobs.items()}
+
+
+def _alloc(n: int, degree: int) -> dict:
+    k = (degree + 1) ** 2
+    return {"positions": np.empty((n, 3), np.float32), "orientations": np.empty((n, 4), np.float32),
+            "log_scales": np.empty((n, 3), np.float32), "opacities": np.empty(n, np.float32),
+            "sh": np.zeros((n, k, 3), np.float32)}
+
+
+def _to_set(out: dict, label: str) -> GaussianSet:
+    return GaussianSet(out["positions"], out["orientations"], scales_from_log(out["log_scales"]), out["opacities"],
+                       out["sh"], log_scales=out["log_scales"], label=label)
+
+
+def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
+    """Decode one SOG unit into rows ``start:start+count`` of the arrays in ``out``."""
+    label = plan.label
+    n = plan.count
+    jobs = plan.jobs
+    imgs = {key: _decode_webp(label, jobs[key][0], raw[key], jobs[key][1]) for key in jobs}
+    mins, maxs, qfile, bands = plan.mins, plan.maxs, plan.qfile, plan.bands
+    sl = slice(start, start + n)
+    lo = imgs["means_l"][0][:n, :3].astype(np.uint32)
+    hi = imgs["means_u"][0][:n, :3].astype(np.uint32)
+    rng = maxs - mins
+    rng[rng == 0] = 1.0
+    v = mins + rng * ((lo | (hi << 8)).astype(np.float64) / 65535.0)
+    positions = out["positions"][sl]
+    positions[...] = np.copysign(np.expm1(np.abs(v)), v)
+    bad = ~np.isfinite(positions)
+    i = first_bad_index(bad) if n else -1
+    if i >= 0:
+        raise InputFormatError(f"{label}: 'means' of Gaussian {i} decodes outside the float32 range "
+                               "(meta.json 'means.mins'/'means.maxs' too large)")
+
+    qpx = imgs["quats"][0][:n]
+    tag = qpx[:, 3].astype(np.intp) - 252
+    i = first_bad_index((tag < 0) | (tag > 3)) if n else -1
+    if i >= 0:
+        raise InputFormatError(f"{label}: image '{qfile}' pixel {i} has alpha {int(qpx[i, 3])}; "
+                               "a quaternion tag must be 252..255")
+    abc = (qpx[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / np.sqrt(2.0)
+    q = np.empty((n, 4), np.float64)
+    rows = np.arange(n)
+    q[rows, tag] = np.sqrt(np.maximum(0.0, 1.0 - np.einsum("ij,ij->i", abc, abc)))
+    others = np.asarray(((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)))[tag]
+    q[rows[:, None], others] = abc
+    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+    i = first_bad_index(norm == 0) if n else -1
+    if i >= 0:
+        raise InputFormatError(f"{label}: image '{qfile}' pixel {i} decodes to a zero quaternion")
+    out["orientations"][sl] = q / norm[:, None]
+
+    log_scales = out["log_scales"][sl]
+    log_scales[...] = _lookup(label, "scales", plan.scb, imgs["scales"][0][:n, :3])
+    i = first_bad_index(log_scales > _LOG_SCALE_MAX) if n else -1
+    if i >= 0:
+        raise InputFormatError(f"{label}: meta.json 'scales.codebook' value {log_scales[i].max()} (Gaussian {i}) "
+                               "overflows float32 after exp()")
+    c0 = imgs["sh0"][0][:n]
+    sh = out["sh"][sl]
+    sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0[:, :3])
+    out["opacities"][sl] = c0[:, 3].astype(np.float32) / np.float32(255.0)
+    if bands:
+        hfiles, palette, hcb = plan.hfiles, plan.palette, plan.hcb
+        rest = _SH_REST[bands]
+        cen, cw, ch = imgs["centroids"]
+        if cw != 64 * rest:
+            raise InputFormatError(f"{label}: image '{hfiles[0]}' is {cw} pixels wide; {bands} SH bands need "
+                                   f"{64 * rest}")
+        if palette > ch * 64:
+            raise InputFormatError(f"{label}: meta.json 'shN.count' {palette} is more than the {ch * 64} palette "
+                                   f"entries image '{hfiles[0]}' ({cw}x{ch}) holds")
+        pal = _lookup(label, "shN", hcb, cen.reshape(ch * 64, rest, 4)[:palette, :, :3])  # (P, K-1, 3)
+        lab = imgs["labels"][0][:n]
+        labels = lab[:, 0].astype(np.intp) | (lab[:, 1].astype(np.intp) << 8)
+        i = first_bad_index(labels >= palette) if n else -1
+        if i >= 0:
+            raise InputFormatError(f"{label}: image '{hfiles[1]}' pixel {i} has label {int(labels[i])}, past "
+                                   f"meta.json 'shN.count' {palette}")
+        sh[:, 1:(bands + 1) ** 2, :] = pal[labels]
+
+
+# ------------------------------------------------------------------------------------ LOD
+def _lod_files(label: str, meta) -> tuple[int, dict[int, dict[int, int]], list[str]]:
+    """(lodLevels, {level: {file index: Gaussian count}}, filenames) of a lod-meta.json."""
+    if not isinstance(meta, dict):
+        raise InputFormatError(f"{label}: lod-meta.json is not a JSON object")
+    levels = meta.get("lodLevels")
+    if not isinstance(levels, int) or isinstance(levels, bool) or levels <= 0:
+        raise InputFormatError(f"{label}: lod-meta.json field 'lodLevels' is missing or not a positive integer")
+    names = meta.get("filenames")
+    if not isinstance(names, list) or not all(isinstance(x, str) and x for x in names):
+        raise InputFormatError(f"{label}: lod-meta.json field 'filenames' is missing or not a list of names")
+    if not isinstance(meta.get("tree"), dict):
+        raise InputFormatError(f"{label}: lod-meta.json field 'tree' is missing or not an object")
+    out: dict[int, dict[int, int]] = {}
+    stack = [meta["tree"]]
+    while stack:
+        node = stack.pop()
+        if not isinstance(node, dict):
+            raise InputFormatError(f"{label}: lod-meta.json 'tree' has a node that is not an object")
+        lods = node.get("lods", {})
+        children = node.get("children", [])
+        if not isinstance(lods, dict) or not isinstance(children, list):
+            raise InputFormatError(f"{label}: lod-meta.json 'tree' node has bad 'lods' or 'children'")
+        for key, ref in lods.items():
+            ok = (isinstance(ref, dict) and key.isdigit() and int(key) < levels
+                  and all(isinstance(ref.get(f), int) and not isinstance(ref.get(f), bool) and ref.get(f) >= 0
+                          for f in ("file", "offset", "count")) and ref["file"] < len(names))
+            if not ok:
+                raise InputFormatError(f"{label}: lod-meta.json 'tree' has a bad LOD reference {key!r}: {ref!r}")
+            files = out.setdefault(int(key), {})
+            files[ref["file"]] = files.get(ref["file"], 0) + ref["count"]
+        stack.extend(children)
+    return levels, out, names
+
+
+def read_lod_set(path, lod: int | None = None, threads: int | None = None) -> GaussianSet:
+    """Read one level of a SOG LOD set (``lod-meta.json``; module docstring).
+
+    ``lod`` None picks the finest level (lowest number) whose chunk files are all present.
+    Raises :class:`InputFormatError` for a bad manifest, a level that does not exist, a level
+    whose chunk files are missing (the message lists them) and a chunk whose ``count``
+    differs from the counts the tree references.
+    """
+    p = Path(path)
+    label = str(path)
+    try:
+        meta = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFormatError(f"{label}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputFormatError(f"{label}: lod-meta.json is not valid JSON ({exc})") from None
+    levels, by_level, names = _lod_files(label, meta)
+    present = sorted(by_level)
+    if not present:
+        raise InputFormatError(f"{label}: lod-meta.json 'tree' references no LOD level")
+
+    def missing(level):
+        return [str(p.parent / names[f]) for f in sorted(by_level[level]) if not (p.parent / names[f]).is_file()]
+
+    if lod is None:
+        complete = [lv for lv in present if not missing(lv)]
+        if not complete:
+            raise InputFormatError(f"{label}: no LOD level is complete; level {present[0]} lacks "
+                                   f"{', '.join(missing(present[0]))}")
+        lod = complete[0]
+    elif lod not in by_level:
+        raise InputFormatError(f"{label}: LOD level {lod} is not in the set (levels: "
+                               f"{', '.join(map(str, present))})")
+    else:
+        gone = missing(lod)
+        if gone:
+            raise InputFormatError(f"{label}: LOD level {lod} is incomplete: missing {', '.join(gone)}")
+    plans = []
+    for f, count in sorted(by_level[lod].items()):
+        meta_path = p.parent / names[f]
+        plan = _Plan(_Source(str(meta_path), folder=meta_path.parent))
+        if plan.count != count:
+            raise InputFormatError(f"{meta_path}: meta.json 'count' is {plan.count} but {label} references "
+                                   f"{count} Gaussians in it for LOD {lod}")
+        plans.append(plan)
+    starts = np.concatenate([[0], np.cumsum([pl.count for pl in plans])]).astype(int)
+    out = _alloc(int(starts[-1]), max(pl.bands for pl in plans))
+    workers = threads or min(len(plans), os.cpu_count() or 1)
+
+    def run(i):
+        _decode(plans[i], plans[i].load(), out, int(starts[i]))
+
+    if workers > 1 and len(plans) > 1:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(run, range(len(plans))))
+    else:
+        for i in range(len(plans)):
+            run(i)
+    return _to_set(out, label)
+
+
+# ---------------------------------------------------------------------------------- public
+def read_sog(path, lod: int | None = None, threads: int | None = None) -> GaussianSet:
+    """Read a SOG v2 capture into a :class:`GaussianSet` (module docstring).
+
+    ``path`` is a bundled ``.sog`` zip, a ``meta.json``, a ``lod-meta.json`` or a folder
+    holding one of them. ``lod`` selects the level of a LOD set (None: the finest complete
+    level); it is an error for a single SOG unless 0 or None. Raises
+    :class:`InputFormatError` naming the file and the field on bad input (corrupt zip,
+    missing member, WebP that does not decode or is smaller than ``count``, missing or
+    malformed meta.json fields, codebook indices out of range, bad quaternion tags).
+    """
+    p = Path(path)
+    label = str(path)
+    if p.is_dir():
+        if (p / "lod-meta.json").is_file():
+            p = p / "lod-meta.json"
+        elif (p / "meta.json").is_file():
+            p = p / "meta.json"
+        else:
+            raise InputFormatError(f"{label}: folder holds neither lod-meta.json nor meta.json")
+    if not p.exists():
+        raise InputFormatError(f"{label}: no such file")
+    if p.name == "lod-meta.json":
+        return read_lod_set(p, lod, threads)
+    if lod not in (None, 0):
+        raise InputFormatError(f"{label}: --lod {lod} given but this SOG has a single level (no lod-meta.json)")
+    if p.suffix.lower() == ".json":
+        plan = _Plan(_Source(str(p), folder=p.parent))
+        out = _alloc(plan.count, plan.bands)
+        _decode(plan, plan.load(), out)
+        return _to_set(out, label)
+    with _open_zip(label, p) as zf:
+        try:
+            names = zf.namelist()
+        except (zipfile.BadZipFile, ValueError) as exc:
+            raise InputFormatError(f"{label}: corrupt zip directory ({exc})") from None
+        metas = [nm for nm in names if PurePosixPath(nm).name == "meta.json"]
+        if not metas:
+            raise InputFormatError(f"{label}: archive has no meta.json")
+        prefix = str(PurePosixPath(min(metas, key=len)).parent)
+        plan = _Plan(_Source(label, archive=zf, prefix="" if prefix == "." else prefix))
+        raw = plan.load()
+    out = _alloc(plan.count, plan.bands)
+    _decode(plan, raw, out)
+    return _to_set(out, label)
