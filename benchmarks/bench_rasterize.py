@@ -2,7 +2,7 @@
 
 Prints, side by side:
 - PSNR (and max abs error) of the fast path against the brute-force float64 reference
-  (numba_kernels/rasterize_reference.py) on small scenes (64x48, a few hundred Gaussians);
+  (numba_kernels/reference/rasterize.py) on small scenes (64x48, a few hundred Gaussians);
 - wall (and process CPU) time of six 64x64 cube faces and of one 960x540 view of
   1,000,000-Gaussian scenes: a room-like scene (walls + furniture) and
   ``usd_gs.synthetic.random_gaussians`` (issue targets: <= 0.5 s and <= 2 s), plus the real
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from usd_gs import sh3dgs
-from usd_gs.render.camera import Camera
 from usd_gs.gaussians import GaussianSet
+from usd_gs.render.camera import Camera
 
 
 def _random_quats(rng, n):
@@ -168,7 +168,7 @@ def main():
 
     import numba
 
-    from numba_kernels.rasterize_reference import render_reference
+    from numba_kernels.reference.rasterize import render_reference
     from usd_gs.render.rasterize import render
     from usd_gs.synthetic import random_gaussians
 

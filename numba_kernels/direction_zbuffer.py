@@ -106,19 +106,3 @@ def splat_min_depth(dirs: np.ndarray, dist: np.ndarray, radius: np.ndarray, size
     out = np.full((6, int(size), int(size)), np.inf)
     _splat(d, r, rad, FACE_FRAMES, int(size), int(max_reach), out)
     return out
-
-
-def splat_min_depth_reference(dirs, dist, radius, size: int) -> np.ndarray:
-    """Slow reference of :func:`splat_min_depth` (with a ``max_reach`` that does not bind):
-    every disc against every texel of every face (numpy, O(T x 6 size^2))."""
-    from .cubemap_dirs import cube_face_directions
-
-    td = cube_face_directions(int(size))
-    td = td / np.linalg.norm(td, axis=-1, keepdims=True)
-    out = np.full((6, size, size), np.inf)
-    for t in range(len(dist)):
-        if not radius[t] > 0:
-            continue
-        cover = td @ np.asarray(dirs[t], np.float64) >= np.cos(radius[t])
-        out = np.where(cover, np.minimum(out, dist[t]), out)
-    return out

@@ -1,6 +1,6 @@
 """CPU 3D Gaussian Splatting rasteriser (numba): the standard 3DGS forward pass.
 
-Image formation (shared by :mod:`numba_kernels.rasterize_reference`, which implements the
+Image formation (shared by :mod:`numba_kernels.reference.rasterize`, which implements the
 same definition by brute force in float64):
 
 1. View transform. Each camera k is given as ``view_rot[k]`` (3x3) and ``view_t[k]`` (3,)

@@ -14,7 +14,8 @@ from numba_kernels.dgsm_exact import (
     transmittance_point,
 )
 from numba_kernels.dgsm_model import ALPHA_MAX, TAU_STAR_MAX, pack_gaussians, pack_occluders
-from numba_kernels.dgsm_reference import optical_depth_numpy, segment_depth_mpmath, segment_depth_quad
+from numba_kernels.reference.dgsm_exact import optical_depth_numpy
+from numba_kernels.reference.dgsm_model import segment_depth_mpmath, segment_depth_quad
 
 
 def _tau_mp(light, x, occ, dd, dps=50):

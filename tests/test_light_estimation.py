@@ -21,13 +21,12 @@ from numba_kernels.light_estimation import (  # noqa: E402
     score_cues,
     select_tail,
 )
-from numba_kernels.light_estimation_reference import reference_cues, reference_estimate  # noqa: E402
+from numba_kernels.reference.light_estimation import reference_cues, reference_estimate  # noqa: E402
 from usd_gs import sh3dgs  # noqa: E402
 from usd_gs.errors import GaussianDataError, UserError  # noqa: E402
-from usd_gs.gaussians import GaussianSet  # noqa: E402
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid  # noqa: E402
 from usd_gs.relight.light_estimation import (  # noqa: E402
     LightEstimationConfig,
-    alpha_weighted_centroid,
     estimate_lights,
     make_viewpoints,
 )

@@ -173,7 +173,8 @@ def test_a_panel_moved_in_front_of_the_sky_hides_it():
 def test_direction_zbuffer_matches_its_reference():
     """The numba z-buffer against the brute-force one: discs across face edges and at the poles,
     zero-radius discs skipped, the nearest distance kept where discs overlap."""
-    from numba_kernels.direction_zbuffer import splat_min_depth, splat_min_depth_reference
+    from numba_kernels.direction_zbuffer import splat_min_depth
+    from numba_kernels.reference.direction_zbuffer import splat_min_depth as splat_min_depth_reference
 
     rng = np.random.default_rng(3)
     d = rng.standard_normal((400, 3))
@@ -215,7 +216,8 @@ def test_supersampled_probe_render_integrates_a_small_lamp():
 
 def test_nearest_over_own_direction_reads_the_zbuffer_at_each_disc():
     from numba_kernels.cubemap_dirs import direction_to_face_uv
-    from numba_kernels.direction_zbuffer import nearest_over_own_direction, splat_min_depth_reference
+    from numba_kernels.direction_zbuffer import nearest_over_own_direction
+    from numba_kernels.reference.direction_zbuffer import splat_min_depth as splat_min_depth_reference
 
     rng = np.random.default_rng(5)
     d = rng.standard_normal((300, 3))

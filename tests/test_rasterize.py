@@ -8,10 +8,10 @@ import pytest
 
 from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.rasterize import rasterize
-from numba_kernels.rasterize_reference import render_reference
+from numba_kernels.reference.rasterize import render_reference
 from usd_gs import sh3dgs
-from usd_gs.render.camera import Camera
 from usd_gs.gaussians import GaussianSet
+from usd_gs.render.camera import Camera
 from usd_gs.render.rasterize import cube_faces_cross, render, render_batch, render_cube_faces, to_srgb8, write_png
 
 IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])

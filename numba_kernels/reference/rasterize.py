@@ -1,4 +1,4 @@
-"""Brute-force float64 reference for :mod:`numba_kernels.rasterize` (tests only).
+"""Brute-force float64 reference for :mod:`numba_kernels.rasterize` (tests and benchmarks).
 
 Same image formation as the fast rasteriser (see its module docstring): same EWA
 projection with the guard-band clamp and dilation, same 3-sigma support, alpha clamp and
@@ -16,6 +16,8 @@ and small images.
 from __future__ import annotations
 
 import numpy as np
+
+from .sh_real import threedgs_color
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -76,8 +78,6 @@ def render_reference(positions, quats, scales, opacities, sh, view_rot, view_t, 
 
     Returns (color (H,W,3) premultiplied, transmittance (H,W), depth_sum (H,W)), float64.
     """
-    from usd_gs.sh3dgs import eval_color
-
     view_rot = np.asarray(view_rot, np.float64).reshape(3, 3)
     view_t = np.asarray(view_t, np.float64).reshape(3)
     intr = np.asarray(intr, np.float64).reshape(4)
@@ -101,7 +101,7 @@ def render_reference(positions, quats, scales, opacities, sh, view_rot, view_t, 
         op = op * np.sqrt(np.maximum(det0, 0.0) / (cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2))
     dirs = np.asarray(positions, np.float64)[idx] - cam_pos
     dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-300)
-    col = np.maximum(0.0, eval_color(np.asarray(sh)[idx], dirs)) if len(idx) else np.zeros((0, 3))
+    col = np.maximum(0.0, threedgs_color(np.asarray(sh)[idx], dirs)) if len(idx) else np.zeros((0, 3))
 
     color = np.zeros((height, width, 3))
     trans = np.ones((height, width))

@@ -1,11 +1,11 @@
-"""Slow, obvious numpy version of ``numba_kernels.light_estimation`` (for tests only).
+"""Slow, obvious numpy version of ``numba_kernels.light_estimation`` (tests and benchmarks).
 
 Same steps and formulas as the module docstring of ``light_estimation``, written directly:
-SH colours through ``usd_gs.sh3dgs.eval_color`` (an independent implementation of the 3DGS
-basis), statistics with ``np.mean`` / ``np.std`` / ``np.max``, the percentile with
-``np.percentile(method="lower")``, the tail with a stable ``argsort``, neighbourhoods by a
-dense O(M N) distance matrix, NMS and refinement with Python loops over the k lights.
-Memory is O(M N): use it on small scenes only.
+SH colours through ``reference.sh_real.threedgs_color`` (the 3DGS basis from scipy's complex
+SH, independent of the kernel's polynomials; ``C0 = Y_00 = 1 / (2 sqrt(pi))``), statistics with
+``np.mean`` / ``np.std`` / ``np.max``, the percentile with ``np.percentile(method="lower")``,
+the tail with a stable ``argsort``, neighbourhoods by a dense O(M N) distance matrix, NMS and
+refinement with Python loops over the k lights. Memory is O(M N): use it on small scenes only.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from usd_gs import sh3dgs
+from .sh_real import threedgs_color
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -23,7 +23,7 @@ def _colors_from(sh, positions, viewer):
     d = positions - viewer
     n = np.linalg.norm(d, axis=1, keepdims=True)
     d = np.where(n > 0, d / np.where(n > 0, n, 1.0), np.array([0.0, 0.0, 1.0]))
-    return np.maximum(sh3dgs.eval_color(sh, d), 0.0)
+    return np.maximum(threedgs_color(sh, d), 0.0)
 
 
 def reference_cues(positions, opacities, sh, centroid, viewpoints, cfg):
@@ -37,7 +37,7 @@ def reference_cues(positions, opacities, sh, centroid, viewpoints, cfg):
     mean_y = ys.mean(1)
     max_y = ys.max(1)
     stab = np.clip(1.0 - ys.std(1) / (mean_y + 1e-12), 0.0, 1.0)
-    dc = 0.5 + sh3dgs.C0 * sh64[:, 0, :]
+    dc = 0.5 + 0.5 / math.sqrt(math.pi) * sh64[:, 0, :]
     e_dc = (dc ** 2).sum(1)
     e_view = (sh64[:, 1:, :] ** 2).sum((1, 2)) / (4.0 * math.pi)
     dom = np.where(e_dc + e_view > 0, e_dc / np.where(e_dc + e_view > 0, e_dc + e_view, 1.0), 0.0)
