@@ -50,10 +50,10 @@ def read_capture(path, lod: int | None = None) -> GaussianSet:
     (:class:`InputFormatError`) naming the file and the field.
     """
     kind = capture_kind(path)
-    if not Path(path).exists():
-        raise InputFormatError(f"{path}: no such file")
     if lod not in (None, 0) and kind != "sog":
         raise UserError(f"{path}: --lod {lod} only applies to SOG LOD sets (lod-meta.json)")
+    if not Path(path).exists():
+        raise InputFormatError(f"{path}: no such file")
     if kind == "ply":
         from usd_gs.io.ply import read_ply
 
