@@ -128,25 +128,67 @@ def _counting_sort(keys, n_buckets, points, cells):
     return start, order, spoints, scells, pure
 
 
-def build_grid(points: np.ndarray, cell_size: float) -> HashGrid:
-    """Index ``points`` (M, 3) (any float dtype, finite) into a spatial hash of cell edge ``cell_size`` > 0."""
+def build_grid(points: np.ndarray, cell_size: float, origin=None, min_buckets: int = 0) -> HashGrid:
+    """Index ``points`` (M, 3) (any float dtype, finite) into a spatial hash of cell edge ``cell_size`` > 0.
+
+    origin: (3,) corner of cell (0, 0, 0) (default: the first point). The table has the smallest
+    power-of-two number of buckets >= max(M, ``min_buckets``).
+    """
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     cell_size = float(cell_size)
     if not (cell_size > 0.0 and np.isfinite(cell_size)):
         raise ValueError(f"cell_size must be a positive finite number, got {cell_size}")
     m = pts.shape[0]
     n_buckets = 1
-    while n_buckets < m:
+    while n_buckets < max(m, int(min_buckets)):
         n_buckets *= 2
     mask = n_buckets - 1
-    # any origin works (cells may be negative); the first point is free, unlike a strided min()
-    origin = pts[0].copy() if m else np.zeros(3)
+    if origin is None:
+        # any origin works (cells may be negative); the first point is free, unlike a strided min()
+        origin = pts[0].copy() if m else np.zeros(3)
+    else:
+        origin = np.array(origin, dtype=np.float64).reshape(3)
     origin = np.where(np.isfinite(origin), origin, 0.0)
     cells = np.empty(m, dtype=np.int64)
     keys = np.empty(m, dtype=np.int64)
     _cell_keys(pts, origin, 1.0 / cell_size, np.int64(mask), cells, keys)
     start, order, spoints, scells, pure = _counting_sort(keys, n_buckets, pts, cells)
     return HashGrid(spoints, origin, cell_size, mask, scells, start, order, pure)
+
+
+@njit(cache=True, fastmath=False)
+def neighbour_slots(points, origin, cell_size, mask, cell_keys, bucket_start, qx, qy, qz, radius, skip, buf):
+    """Grid slots ``t`` (indices into ``HashGrid.points``, bucket order) of the points with
+    ``|points[t] - q|^2 <= radius^2``, ``t != skip``, written to ``buf`` in visiting order (cells by
+    x, then y, then z coordinate, ascending; a cell's points in slot order); returns how many
+    (at most ``len(buf)``: further neighbours are ignored). Called from other kernels, one query
+    point at a time (``skip``: the query's own slot, or -1); the array arguments are the
+    :class:`HashGrid` fields. Visits the 27 cells around q's cell when ``radius <= cell_size``."""
+    inv = 1.0 / cell_size
+    r2 = radius * radius
+    n = np.int64(1) if radius <= cell_size else np.int64(np.ceil(radius * inv))
+    cx = _cell_coord(qx, origin[0], inv)
+    cy = _cell_coord(qy, origin[1], inv)
+    cz = _cell_coord(qz, origin[2], inv)
+    cnt = 0
+    for ix in range(cx - n, cx + n + 1):
+        for iy in range(cy - n, cy + n + 1):
+            for iz in range(cz - n, cz + n + 1):
+                if ix < -_BIAS or iy < -_BIAS or iz < -_BIAS or ix >= _BIAS or iy >= _BIAS or iz >= _BIAS:
+                    continue
+                b = _hash(ix, iy, iz, mask)
+                key = _pack(ix, iy, iz)
+                for t in range(bucket_start[b], bucket_start[b + 1]):
+                    dx = points[t, 0] - qx
+                    dy = points[t, 1] - qy
+                    dz = points[t, 2] - qz
+                    # distance first (cheap, vectorisable); the exact cell check then drops
+                    # points reached twice through colliding hashes
+                    if dx * dx + dy * dy + dz * dz <= r2 and cell_keys[t] == key and t != skip:
+                        if cnt < buf.shape[0]:
+                            buf[cnt] = t
+                            cnt += 1
+    return cnt
 
 
 @njit(cache=True, fastmath=False)

@@ -38,10 +38,10 @@ local z = mesh normal): Gaussians pointing into the body 1.1 / 2.7 / 7.7 / 19 % 
 0.02 / 0.01 % at 1500 / 4000 / 30000 / 150000 Gaussians (seeds 0-3 at 1000-30000: mean
 3.0 % -> 0.34 %, at most 1.8 % at 1000); flat faces of two cubes 10 % -> 0.
 
-Neighbours come from a uniform grid (cell = radius) stored as a hash table built with a
-sort (points are processed in grid order for cache locality); no KD-tree is needed at run
-time. ``radius=None`` picks the radius so that a sample of Gaussians has
-~``target_neighbours`` neighbours on average (surface-like sets).
+Neighbours come from the spatial hash of ``numba_kernels.grid_neighbours`` (cell = radius;
+points are processed in grid order for cache locality); no KD-tree is needed at run time.
+``radius=None`` picks the radius so that a sample of Gaussians has ~``target_neighbours``
+neighbours on average (surface-like sets).
 
 Animated avatars: estimate normals once in the rest pose, convert them to each Gaussian's
 local frame with :func:`normals_to_local`, and get every posed frame with
@@ -60,14 +60,14 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .grid_neighbours import HashGrid, build_grid, neighbour_slots
 from .jit_options import threaded
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
-_P1, _P2, _P3 = 73856093, 19349663, 83492791
 _CHUNK = 256
 _VOTE_NEIGHBOURS = 32  # nearest neighbours kept per Gaussian for the orientation and consistency passes
-_BITS = 21  # bits per axis in a packed cell key
+_MAX_CELLS = 2 ** 20 - 4  # cells per axis, below grid_neighbours' coordinate clamp (2^20 - 1)
 _JOIN_PASSES = ((0.98, 1.0), (0.9, 0.6))  # (min |cos| of the axes, max distance / radius) per pass
 _JOIN_TANGENTIAL = 0.35  # max |<p_j - p_i, a>| / |p_j - p_i| of a joined pair
 _AGREE = (0.3, 10.0)  # passes >= 2 refuse a join of components with |sum v| > 0.3 sum o + 10, opposite signs
@@ -76,91 +76,25 @@ _SMOOTH_BELOW = 32  # consistency passes for components smaller than this (and u
 _VOTE_CLIP = 0.05  # own votes saturate at an offset of this times the radius
 
 
-@njit(cache=True, fastmath=False)
-def _cell_hash(ix, iy, iz, mask):
-    h = (ix * _P1) ^ (iy * _P2) ^ (iz * _P3)
-    return h & mask
-
-
-@njit(cache=True, fastmath=False)
-def _cell_key(ix, iy, iz):
-    """Exact packed cell id (cells are offset by +1 so that the -1 neighbour is >= 0)."""
-    return ((ix + 1) << (2 * _BITS)) | ((iy + 1) << _BITS) | (iz + 1)
-
-
-@njit(cache=True, fastmath=False)
-def _hash_points(pos, origin, inv_cell, mask, hashes, keys):
-    for i in range(pos.shape[0]):
-        ix = np.int64(math.floor((pos[i, 0] - origin[0]) * inv_cell))
-        iy = np.int64(math.floor((pos[i, 1] - origin[1]) * inv_cell))
-        iz = np.int64(math.floor((pos[i, 2] - origin[2]) * inv_cell))
-        hashes[i] = _cell_hash(ix, iy, iz, mask)
-        keys[i] = _cell_key(ix, iy, iz)
-
-
-class _Grid:
-    """Uniform grid hash: points sorted by cell hash; ``start[h]:start[h+1]`` is bucket h.
-
-    ``cellkey[t]`` is the exact cell of the point at sorted slot t (filters hash collisions).
-    """
-
-    def __init__(self, pos: np.ndarray, radius: float):
-        self.pos = pos
-        self.radius = float(radius)
-        self.origin = pos.min(axis=0) if len(pos) else np.zeros(3)
-        if len(pos):
-            cells = float(np.max((pos.max(axis=0) - self.origin) / self.radius))
-            if cells > 2 ** _BITS - 4:
-                raise ValueError(f"neighbourhood radius {radius} is too small for the extent of the points "
-                                 f"({cells:.0f} cells per axis, at most {2 ** _BITS - 4})")
-        table = 1
-        while table < 2 * max(1, len(pos)):
-            table *= 2
-        self.mask = table - 1
-        hashes = np.empty(len(pos), dtype=np.int64)
-        keys = np.empty(len(pos), dtype=np.int64)
-        _hash_points(pos, self.origin, 1.0 / self.radius, self.mask, hashes, keys)
-        self.order = np.argsort(hashes, kind="stable").astype(np.int64)
-        self.cellkey = keys[self.order]
-        counts = np.bincount(hashes, minlength=table)
-        self.start = np.zeros(table + 1, dtype=np.int64)
-        np.cumsum(counts, out=self.start[1:])
-
-
-@njit(cache=True, fastmath=False)
-def _neighbours_of(i, pos, origin, radius, mask, order, start, cellkey, buf):
-    """Fill ``buf`` with indices j != i within ``radius`` of point i; returns the count
-    (at most ``len(buf)``: further neighbours are ignored)."""
-    inv = 1.0 / radius
-    r2 = radius * radius
-    cx = np.int64(math.floor((pos[i, 0] - origin[0]) * inv))
-    cy = np.int64(math.floor((pos[i, 1] - origin[1]) * inv))
-    cz = np.int64(math.floor((pos[i, 2] - origin[2]) * inv))
-    cnt = 0
-    for dx in range(-1, 2):
-        for dy in range(-1, 2):
-            for dz in range(-1, 2):
-                h = _cell_hash(cx + dx, cy + dy, cz + dz, mask)
-                key = _cell_key(cx + dx, cy + dy, cz + dz)
-                for t in range(start[h], start[h + 1]):
-                    j = order[t]
-                    ddx = pos[j, 0] - pos[i, 0]
-                    ddy = pos[j, 1] - pos[i, 1]
-                    ddz = pos[j, 2] - pos[i, 2]
-                    # distance first (cheap, vectorisable); the exact cell check then drops
-                    # points reached twice through colliding hashes
-                    if ddx * ddx + ddy * ddy + ddz * ddz <= r2 and cellkey[t] == key and j != i:
-                        if cnt < buf.shape[0]:
-                            buf[cnt] = j
-                            cnt += 1
-    return cnt
+def _grid(pos: np.ndarray, radius: float) -> HashGrid:
+    """The neighbour grid: cells of edge ``radius`` from the lower corner of the points, a table of
+    >= 2 N buckets (``grid_neighbours.build_grid``); its ``points`` are ``pos`` in grid order."""
+    origin = pos.min(axis=0) if len(pos) else np.zeros(3)
+    if len(pos):
+        cells = float(np.max((pos.max(axis=0) - origin) / radius))
+        if cells > _MAX_CELLS:
+            raise ValueError(f"neighbourhood radius {radius} is too small for the extent of the points "
+                             f"({cells:.0f} cells per axis, at most {_MAX_CELLS})")
+    return build_grid(pos, radius, origin=origin, min_buckets=2 * max(1, len(pos)))
 
 
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
-def _count_kernel(sample, pos, origin, radius, mask, order, start, cellkey, max_nb, out):
-    for s in prange(sample.shape[0]):
+def _count_kernel(slots, points, origin, radius, mask, cellkey, start, max_nb, out):
+    for s in prange(slots.shape[0]):
         buf = np.empty(max_nb, dtype=np.int64)
-        out[s] = _neighbours_of(sample[s], pos, origin, radius, mask, order, start, cellkey, buf)
+        t = slots[s]
+        out[s] = neighbour_slots(points, origin, radius, mask, cellkey, start, points[t, 0], points[t, 1],
+                                 points[t, 2], radius, t, buf)
 
 
 @njit(cache=True, fastmath=False)
@@ -216,7 +150,7 @@ def _select_smallest(key, val, cnt, k):
 
 
 @njit(cache=True, fastmath=False)
-def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
+def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, cellkey, start, max_nb,
                        iso_ratio, axis, ratio, centroid, count, cov, nbr):
     """One chunk of :func:`_local_stats_kernel` (the parallel loop's body as a call: an inlined body is typed twice)."""
     buf = np.empty(max_nb, dtype=np.int64)
@@ -233,7 +167,8 @@ def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, ord
         axis[i, 1] = ay
         axis[i, 2] = az
         ratio[i] = rt
-        cnt = _neighbours_of(i, pos, origin, radius, mask, order, start, cellkey, buf)
+        cnt = neighbour_slots(pos, origin, radius, mask, cellkey, start, pos[i, 0], pos[i, 1], pos[i, 2], radius, i,
+                              buf)
         count[i] = cnt
         keep = nbr.shape[1]
         if cnt > keep:  # move the nearest ``keep`` neighbours to the front
@@ -286,14 +221,14 @@ def _local_stats_chunk(ch, n, pos, quat, scales, opac, origin, radius, mask, ord
 
 
 @njit(**threaded(), cache=True, fastmath=False)
-def _local_stats_kernel(c0, c1, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey, max_nb,
+def _local_stats_kernel(c0, c1, pos, quat, scales, opac, origin, radius, mask, cellkey, start, max_nb,
                         iso_ratio, axis, ratio, centroid, count, cov, nbr):
     """Per Gaussian: smallest axis and scale ratio, opacity-weighted neighbour centroid,
     neighbour count and the 6 unique entries (xx, xy, xz, yy, yz, zz) of the weighted covariance.
     Chunks ``c0..c1-1`` of ``_CHUNK`` Gaussians (threads: ``thread_chunks.run_chunks``)."""
     n = pos.shape[0]
     for ch in range(c0, c1):
-        _local_stats_chunk(np.int64(ch), n, pos, quat, scales, opac, origin, radius, mask, order, start, cellkey,
+        _local_stats_chunk(np.int64(ch), n, pos, quat, scales, opac, origin, radius, mask, cellkey, start,
                            max_nb, iso_ratio, axis, ratio, centroid, count, cov, nbr)
 
 
@@ -437,8 +372,8 @@ def estimate_radius(pos: np.ndarray, target_neighbours: int = 24, sample: int = 
 
 
 def _estimate_radius_grid(pos, target_neighbours=24, sample=512, seed=0):
-    """:func:`estimate_radius` and the last :class:`_Grid` it built if that one has the returned
-    radius (None otherwise), so that the caller need not build it again."""
+    """:func:`estimate_radius` and the last grid (:func:`_grid`) it built if that one has the
+    returned radius (None otherwise), so that the caller need not build it again."""
     n = pos.shape[0]
     if n < 2:
         return 1.0, None
@@ -451,9 +386,12 @@ def _estimate_radius_grid(pos, target_neighbours=24, sample=512, seed=0):
     idx = rng.choice(n, size=min(sample, n), replace=False).astype(np.int64)
     grid = None
     for _ in range(6):
-        grid = _Grid(pos, r)
+        grid = _grid(pos, r)
+        slot = np.empty(n, dtype=np.int64)
+        slot[grid.order] = np.arange(n, dtype=np.int64)
         counts = np.empty(idx.shape[0], dtype=np.int64)
-        _count_kernel(idx, pos, grid.origin, r, grid.mask, grid.order, grid.start, grid.cellkey, 4096, counts)
+        _count_kernel(slot[idx], grid.points, grid.origin, r, grid.mask, grid.cell_keys, grid.bucket_start, 4096,
+                      counts)
         mean = float(counts.mean())
         if target_neighbours / 1.5 <= mean <= target_neighbours * 1.5:
             return r, grid
@@ -492,11 +430,10 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
     w = np.maximum(op.astype(np.float64), 1e-6)
     gcen = (pos * w[:, None]).sum(axis=0) / w.sum()
     # Work in grid order (points of one cell contiguous in memory: far fewer cache misses).
-    grid = _Grid(pos, r) if grid is None else grid
+    grid = _grid(pos, r) if grid is None else grid
     perm = grid.order
-    pos = np.ascontiguousarray(pos[perm])
+    pos = grid.points  # pos[perm]
     quat, sc, op = quat[perm], sc[perm], op[perm]
-    grid.order = np.arange(n, dtype=np.int64)
     axis = np.empty((n, 3), dtype=np.float64)
     ratio = np.empty(n, dtype=np.float64)
     cen = np.empty((n, 3), dtype=np.float64)
@@ -504,7 +441,7 @@ def gaussian_normals(positions, orientations, scales, opacities, radius: float |
     cov6 = np.empty((n, 6), dtype=np.float64)
     nbr = np.empty((n, _VOTE_NEIGHBOURS), dtype=np.int32)
     run_chunks(_local_stats_kernel, (n + _CHUNK - 1) // _CHUNK, pos, quat, sc, op, grid.origin, r, grid.mask,
-               grid.order, grid.start, grid.cellkey, int(max_neighbours), float(iso_ratio), axis, ratio, cen, cnt,
+               grid.cell_keys, grid.bucket_start, int(max_neighbours), float(iso_ratio), axis, ratio, cen, cnt,
                cov6, nbr)
     iso = np.flatnonzero((ratio > float(iso_ratio)) & (cnt >= 3))
     if iso.size:  # local PCA for nearly isotropic Gaussians (batched 3x3 eigh)
