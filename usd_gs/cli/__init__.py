@@ -47,7 +47,7 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
 
 
 # Modules that define subcommands; each has ``REGISTRARS``: functions (subparsers, formatter).
-COMMAND_MODULES = ("io", "demo", "process", "render", "farm", "eval", "bench")
+COMMAND_MODULES = ("io", "demo", "process", "render", "farm", "eval", "bench", "rig")
 
 
 def build_parser() -> argparse.ArgumentParser:
