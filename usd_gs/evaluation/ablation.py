@@ -22,7 +22,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from usd_gs.shadows.dgsm import DGSMConfig
+from numba_kernels import dgsm_build
+from usd_gs.evaluation.shadow_metrics import mesh_shadow_matte
+from usd_gs.evaluation.shadow_stage import caster_strength, evaluate_frame, mean_metrics
+from usd_gs.shadows.dgsm import DGSMConfig, footprint_samples, prepare_occluders
+from usd_gs.shadows.shot import shadow_cone_indices
 
 
 def timed(fn, *a, repeat: int = 3, **kw):
@@ -97,7 +101,6 @@ def _scaled(g, factor: float):
 def run_variants(frames: list, var: list[Variant], radius: float, up_axis: str, log=None) -> list[dict]:
     """Per variant: mean SAE / SM-IoU / BF over ``frames`` (``eval_stage.FrameInputs``, their
     ray-cast references filled on first use) and the mean DGSM seconds per frame."""
-    from usd_gs.evaluation.shadow_stage import caster_strength, evaluate_frame, mean_metrics
 
     out = []
     for v in var:
@@ -128,7 +131,6 @@ def run_variants(frames: list, var: list[Variant], radius: float, up_axis: str, 
 
 def oracle_strength(fi) -> tuple[np.ndarray, float]:
     """(N,) exact mesh shadow strength at every receiver centre of the frame, seconds."""
-    from usd_gs.evaluation.shadow_metrics import mesh_shadow_matte
 
     t = time.perf_counter()
     p = fi.receivers.gaussians.positions.astype(np.float64)[:, None, :]
@@ -146,9 +148,6 @@ def culling_timings(fi, cfg: DGSMConfig | None = None, subset: int = 16) -> dict
     range), without tile culling (every occluder for every ROI pixel: built on every
     ``subset``-th receiver's samples and scaled by the ROI pixel count, as
     benchmarks/bench_dgsm.py does). Best of 2, wall seconds."""
-    from numba_kernels import dgsm_build
-    from usd_gs.shadows.dgsm import footprint_samples, prepare_occluders
-    from usd_gs.shadows.shot import shadow_cone_indices
 
     cfg = (cfg or DGSMConfig()).validate()
     light = next((lt for lt in fi.lights if lt.kind == "point"), None)

@@ -67,10 +67,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from numba_kernels.grid_neighbours import build_grid, radius_neighbours
+from numba_kernels.normals import estimate_radius, gaussian_normals
+from numba_kernels.sh_real import eval_basis_rh_numpy
 from usd_gs import sh3dgs
 from usd_gs.errors import UserError
 from usd_gs.evaluation.colorimetry import luminance, rgb_to_lab
-from usd_gs.gaussians import GaussianSet
+from usd_gs.evaluation.point_visibility import visible_from
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 
 SH_ORDER = 3
 HUBER_K = 1.345
@@ -115,7 +119,6 @@ def weighted_local_pca(positions, weights, radius: float, kernel_sigma: float = 
     ``(axis (N, 3) float64 unit smallest-eigenvalue eigenvectors (sign arbitrary),
     count (N,) int64 neighbours)``; the axis is meaningless where count < 3.
     """
-    from numba_kernels.grid_neighbours import build_grid, radius_neighbours
 
     pos = np.ascontiguousarray(positions, np.float64).reshape(-1, 3)
     w_pt = np.maximum(np.asarray(weights, np.float64).reshape(-1), 0.0)
@@ -145,7 +148,6 @@ def pseudo_normals(g: GaussianSet, radius: float | None = None, toward=None, ref
     normals face; else ``reference`` (N, 3) normals they agree with; else the outward
     smallest-axis normals of ``gaussian_normals``, also used where PCA has < 3 neighbours.
     """
-    from numba_kernels.normals import estimate_radius, gaussian_normals
 
     pos = g.positions.astype(np.float64)
     r = float(estimate_radius(pos)) if radius is None else float(radius)
@@ -165,7 +167,6 @@ def pseudo_normals(g: GaussianSet, radius: float | None = None, toward=None, ref
 
 def sh_basis(normals) -> np.ndarray:
     """(N, 16) real RH SH basis of order :data:`SH_ORDER` at unit normals (N, 3)."""
-    from numba_kernels.sh_real import eval_basis_rh_numpy
 
     return eval_basis_rh_numpy(np.asarray(normals, np.float64), SH_ORDER)
 
@@ -383,7 +384,6 @@ def scene_lighting(scene: GaussianSet, centre, radius_m: float = 1.5, meters_per
     metres that the centre sees (``visible_only``: ``usd_gs.evaluation.point_visibility.visible_from``,
     3 cm tolerance), their colours, pseudo-normals (PCA over all Gaussians within the radius,
     signed to face ``centre``) and the fitted ``c_scene``."""
-    from usd_gs.evaluation.point_visibility import visible_from
 
     if not 1.0 <= radius_m <= 2.0:
         raise UserError(f"neighbourhood radius {radius_m} m is outside the paper's range [1, 2] m")
@@ -441,7 +441,6 @@ def lighting_consistency(orig: GaussianSet, relit: GaussianSet, scene: GaussianS
     Gaussians within the radius hidden from the centroid, not in ``N``); lower metric values
     are better.
     """
-    from usd_gs.gaussians import alpha_weighted_centroid
 
     if orig.count != relit.count:
         raise UserError(f"{relit.label}: relit avatar has {relit.count} Gaussians, the original {orig.count}")

@@ -13,7 +13,15 @@ from __future__ import annotations
 
 import os
 
+from pxr import Sdf, Usd, UsdGeom
+
 from usd_gs.errors import UserError
+from usd_gs.evaluation.lighting_metrics import METRICS, PAA_MIN_RANK, lighting_consistency, summarize
+from usd_gs.gaussians import GaussianSet
+from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
+from usd_gs.usd.output_author import LIGHT_SCALE
+from usd_gs.usd.roles import resolve_roles
+from usd_gs.usd.stage import open_stage
 
 
 def _input_path(output_stage) -> str:
@@ -21,7 +29,6 @@ def _input_path(output_stage) -> str:
     subs = list(layer.subLayerPaths)
     if not subs:
         raise UserError(f"{layer.identifier}: has no sublayer; not a 'usdgs process' output stage")
-    from pxr import Sdf
 
     path = Sdf.ComputeAssetPathRelativeToLayer(layer, subs[0])
     if not os.path.exists(path):
@@ -30,7 +37,6 @@ def _input_path(output_stage) -> str:
 
 
 def _processed_frames(output_stage, path: str) -> list[float]:
-    from usd_gs.usd.output_author import LIGHT_SCALE
 
     spec = output_stage.GetRootLayer().GetAttributeAtPath(f"{path}.{LIGHT_SCALE}")
     if spec is None:
@@ -53,13 +59,7 @@ def lighting_consistency_for_stage(output_stage_path, frames=None, radius: float
     where ``result`` is :func:`usd_gs.evaluation.lighting_metrics.lighting_consistency` and ``summary``
     :func:`usd_gs.evaluation.lighting_metrics.summarize`.
     """
-    from pxr import Usd, UsdGeom
 
-    from usd_gs.evaluation.lighting_metrics import lighting_consistency, summarize
-    from usd_gs.gaussians import GaussianSet
-    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
-    from usd_gs.usd.roles import resolve_roles
-    from usd_gs.usd.stage import open_stage
 
     out_path = str(output_stage_path)
     out_stage = open_stage(out_path)
@@ -108,7 +108,6 @@ def format_report(result: dict) -> str:
     """Printable table of :func:`lighting_consistency_for_stage` (means per avatar and overall)."""
     import math
 
-    from usd_gs.evaluation.lighting_metrics import METRICS, PAA_MIN_RANK
 
     def cell(v: float) -> str:
         return f"{'n/a':>16}" if not math.isfinite(v) else f"{v:>16.4f}"

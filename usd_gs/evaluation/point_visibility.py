@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from numba_kernels.cubemap_dirs import FACE_FRAMES, direction_to_face_uv
 from usd_gs.gaussians import GaussianSet
+from usd_gs.render.rasterize import render_cube_faces
 
 
 def visible_from(gaussians: GaussianSet, point, size: int = 64, rel_tol: float = 0.05,
@@ -32,8 +34,6 @@ def visible_from(gaussians: GaussianSet, point, size: int = 64, rel_tol: float =
     size: cube-face resolution in texels (64: ~1.4 degrees per texel). Gaussians within
     ``abs_tol`` of the point count as visible.
     """
-    from numba_kernels.cubemap_dirs import FACE_FRAMES, direction_to_face_uv
-    from usd_gs.render.rasterize import render_cube_faces
 
     n = gaussians.count
     if n == 0:

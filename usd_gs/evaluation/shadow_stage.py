@@ -31,9 +31,30 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from pxr import Usd, UsdGeom
 
+from numba_kernels import cubemap, dgsm_sample
 from usd_gs.errors import UserError
-from usd_gs.gaussians import GaussianSet
+from usd_gs.evaluation.shadow_metrics import evaluate_view
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
+from usd_gs.pipeline.options import dgsm_config, load_config
+from usd_gs.render.camera import Camera
+from usd_gs.render.preview import camera_prims, stage_label
+from usd_gs.shadows.dgsm import footprint_samples, prepare_occluders
+from usd_gs.shadows.shading import combine_lights, light_shares
+from usd_gs.shadows.shot import Receivers, caster_transmittance, occluder_sphere, shadow_cone_indices
+from usd_gs.usd.gaussian_prim import (
+    POSITIONS,
+    data_attribute,
+    describe_gaussian_prim,
+    find_gaussian_prims,
+    is_gaussian_prim,
+    read_gaussian_prim,
+)
+from usd_gs.usd.lux import read_stage_lights
+from usd_gs.usd.output_author import TRANSMITTANCE
+from usd_gs.usd.roles import resolve_roles
+from usd_gs.usd.stage import open_stage
 
 GUIDE_REL = "usdgs:demo:guideFor"
 ATLASES = ("octahedral", "cube")
@@ -57,10 +78,7 @@ class EvalContext:
     # ------------------------------------------------------------------ per frame inputs
     def receivers(self, frame: float):
         """``shot_shadows.Receivers`` of the scene prims at ``frame`` (static prims cached)."""
-        from pxr import Usd
 
-        from usd_gs.shadows.shot import Receivers
-        from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
         parts = []
         for p in self.scene_paths:
@@ -75,9 +93,7 @@ class EvalContext:
         return Receivers.build(parts)
 
     def caster(self, frame: float) -> GaussianSet:
-        from pxr import Usd
 
-        from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
         return read_gaussian_prim(self.stage.GetPrimAtPath(self.avatar_path), Usd.TimeCode(frame))
 
@@ -86,9 +102,7 @@ class EvalContext:
         return guide_mesh_world(self.stage.GetPrimAtPath(self.guide_path), frame)
 
     def lights(self, frame: float) -> list:
-        from pxr import Usd
 
-        from usd_gs.usd.lux import read_stage_lights
 
         lights, _ = read_stage_lights(self.stage, Usd.TimeCode(frame))
         if not lights:
@@ -97,16 +111,13 @@ class EvalContext:
         return lights
 
     def camera(self, frame: float):
-        from usd_gs.render.camera import Camera
 
         return Camera.from_usd(self.stage.GetPrimAtPath(self.camera_path), frame, width=self.width)
 
     def stored_strength(self, receivers, frame: float) -> np.ndarray:
         """(N,) ``1 - primvars:usdgs:transmittance`` of the receivers at ``frame`` (0 where the
         primvar has no value: never shadowed)."""
-        from pxr import Usd
 
-        from usd_gs.usd.output_author import TRANSMITTANCE
 
         out = np.zeros(receivers.gaussians.count)
         for p, (a, b) in receivers.ranges.items():
@@ -123,9 +134,7 @@ class EvalContext:
 
 
 def _is_animated(prim) -> bool:
-    from pxr import UsdGeom
 
-    from usd_gs.usd.gaussian_prim import POSITIONS, data_attribute
 
     attr, _ = data_attribute(prim, POSITIONS)
     return bool(attr and attr.GetNumTimeSamples() > 1) or UsdGeom.Xformable(prim).TransformMightBeTimeVarying()
@@ -133,7 +142,6 @@ def _is_animated(prim) -> bool:
 
 def guide_mesh_world(prim, frame: float) -> tuple[np.ndarray, np.ndarray]:
     """Triangles of a ``UsdGeom.Mesh`` in world space at ``frame`` (polygons fan-triangulated)."""
-    from pxr import Usd, UsdGeom
 
     path = str(prim.GetPath())
     tc = Usd.TimeCode(frame)
@@ -161,7 +169,6 @@ def guide_mesh_world(prim, frame: float) -> tuple[np.ndarray, np.ndarray]:
 
 def find_guides(stage) -> dict[str, str]:
     """{guide mesh path: target prim path} of every ``UsdGeom.Mesh`` with ``usdgs:demo:guideFor``."""
-    from pxr import UsdGeom
 
     out = {}
     for prim in stage.Traverse():
@@ -177,12 +184,7 @@ def find_guides(stage) -> dict[str, str]:
 def open_eval_stage(path: str, camera: str | None = None, avatar: str | None = None, width: int = 960,
                     require_processed: bool = True) -> EvalContext:
     """Open ``path`` and check it (module docstring); ``avatar`` picks the guide mesh by its target."""
-    from pxr import Usd, UsdGeom
 
-    from usd_gs.render.preview import camera_prims, stage_label
-    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, is_gaussian_prim
-    from usd_gs.usd.roles import resolve_roles
-    from usd_gs.usd.stage import open_stage
 
     stage = open_stage(path)
     label = stage_label(stage)
@@ -226,9 +228,6 @@ def _cube_transmittance(caster, receivers, light, cfg, prepared, sphere):
     """Like ``shot_shadows.caster_transmittance`` (cone ROI, no candidates) with the cube-map
     atlas of ablation C (``numba_kernels.cubemap``, 6 faces of ~``atlas_size / sqrt 6`` px:
     the same texel count), plain trilinear lookups."""
-    from numba_kernels import cubemap, dgsm_sample
-    from usd_gs.shadows.dgsm import footprint_samples
-    from usd_gs.shadows.shot import shadow_cone_indices
 
     if light.kind != "point":
         raise UserError(f"{light.name}: the cube-map atlas ablation supports point lights only")
@@ -250,9 +249,6 @@ def caster_strength(caster: GaussianSet, receivers, lights: list, cfg, roi: str 
     """(shadow strength ``1 - T`` (N,) float64 of every receiver from ``caster`` alone, wall
     seconds): one DGSM per light as the main job builds it, lights combined with
     ``shading.light_shares`` / ``combine_lights``. ``atlas``: 'octahedral' or 'cube'."""
-    from usd_gs.shadows.dgsm import prepare_occluders
-    from usd_gs.shadows.shading import combine_lights, light_shares
-    from usd_gs.shadows.shot import caster_transmittance, occluder_sphere
 
     if atlas not in ATLASES:
         raise UserError(f"atlas must be one of {ATLASES}, got {atlas!r}")
@@ -291,7 +287,6 @@ class FrameInputs:
 
 
 def frame_inputs(ctx: EvalContext, frame: float) -> FrameInputs:
-    from usd_gs.gaussians import alpha_weighted_centroid
 
     caster = ctx.caster(frame)
     v, f = ctx.mesh(frame)
@@ -303,7 +298,6 @@ def evaluate_frame(fi: FrameInputs, strength: np.ndarray, radius: float = 2.0, u
                    keep_images: bool = False) -> dict:
     """Metrics of one frame for receiver strengths ``strength`` (``metrics_shadow.evaluate_view``);
     the ray-cast reference is computed on the first call and reused by later ones."""
-    from usd_gs.evaluation.shadow_metrics import evaluate_view
 
     r = evaluate_view(fi.receivers.gaussians, strength, fi.camera, fi.vertices, fi.faces, fi.lights, fi.centre,
                       radius, up_axis, reference=fi.reference)
@@ -336,7 +330,6 @@ def mean_metrics(rows: list[dict]) -> dict:
 
 def dgsm_config_from_file(path: str | None):
     """(DGSMConfig, roi) from a ``usdgs process --config`` JSON file (None: defaults)."""
-    from usd_gs.pipeline.options import dgsm_config, load_config
 
     cfg = load_config(path) if path else {}
     return dgsm_config(cfg), cfg.get("roi", "cone")

@@ -28,8 +28,12 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from pxr import Usd
+
+from usd_gs import __version__
 from usd_gs.errors import UserError
 from usd_gs.io.atomic import atomic_output
+from usd_gs.usd.stage import open_stage
 
 FORMAT = "usdgs-chunk/1"
 PREFIX = "chunk_"
@@ -94,9 +98,7 @@ def sha256_file(path) -> str:
 def input_hash(stage_path: str) -> str:
     """SHA-256 over the bytes of every file layer the input stage uses (sorted by path), so any
     edit to the shot, a sublayer or a referenced asset layer changes it."""
-    from pxr import Usd
 
-    from usd_gs.usd.stage import open_stage
 
     stage = open_stage(stage_path) if not isinstance(stage_path, Usd.Stage) else stage_path
     files = sorted({layer.realPath for layer in stage.GetUsedLayers() if layer.realPath})
@@ -130,7 +132,6 @@ def options_hash(options, lights, anchor: float | None = None) -> str:
     """SHA-256 of every processing option except ``frames``,
     the shot-level ``lights`` (None: per frame from the stage), the normals ``anchor`` frame
     and the package version."""
-    from usd_gs import __version__
 
     opts = _canon(options)
     opts.pop("frames", None)

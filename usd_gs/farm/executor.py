@@ -24,8 +24,12 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from pxr import Sdf
+
 from usd_gs.errors import UserError
 from usd_gs.farm.chunks import FORMAT, Chunk, sha256_file, write_json_atomic
+from usd_gs.pipeline.shot import ShotProcessor
+from usd_gs.usd.gaussian_prim import save_stage_atomic
 
 # Numba's default (workqueue) threading layer must not be entered from two threads at once;
 # chunks that share a process (dask workers with several threads, processes=False) take turns.
@@ -63,10 +67,7 @@ class ChunkResult:
 
 def run_chunk(task: ChunkTask) -> ChunkResult:
     """Compute one chunk into ``task.folder`` (see the module docstring). Safe to run twice."""
-    from pxr import Sdf
 
-    from usd_gs.pipeline.shot import ShotProcessor
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
 
     t0 = time.perf_counter()
     started = time.time()

@@ -16,8 +16,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from usd_gs.farm.chunks import chunk_is_done, clean_folder, input_hash, options_hash, plan_chunks
+from usd_gs.farm.chunks import chunk_is_done, clean_folder, input_hash, options_hash, plan_chunks, read_sidecar
+from usd_gs.farm.clips import assemble
 from usd_gs.farm.executor import ChunkTask, make_backend, run_chunk, run_tasks
+from usd_gs.pipeline.shot import ShotProcessor
+from usd_gs.usd.lux import LIGHTS_ROOT
 
 SHOT_FIRST_FRAME = "usdgs:shotFirstFrame"  # customData on /UsdGs/Lights written by ``usdgs lights``
 
@@ -26,7 +29,6 @@ def anchor_frame(stage, frames: list[float]) -> float:
     """The frame where a chunk estimates the avatars' normals (as the whole-shot run does at
     its first frame): the shot's first frame recorded by ``usdgs lights`` in the lights layer,
     else the first frame of this run (farm tasks must run on the lights layer to agree)."""
-    from usd_gs.usd.lux import LIGHTS_ROOT
 
     prim = stage.GetPrimAtPath(LIGHTS_ROOT)
     value = prim.GetCustomDataByKey(SHOT_FIRST_FRAME) if prim else None
@@ -69,8 +71,6 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
              workers: int | None = None, scheduler: str | None = None, client=None, retries: int = 2,
              report=None, fn=run_chunk) -> FarmSummary:
     """The steps of the module docstring; ``fn`` is the chunk function (tests inject failures)."""
-    from usd_gs.farm.clips import assemble
-    from usd_gs.pipeline.shot import ShotProcessor
 
     t0 = time.perf_counter()
     timings = {}
@@ -104,7 +104,6 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
         if backend:
             backend.close()
     t = time.perf_counter()
-    from usd_gs.farm.chunks import read_sidecar
 
     entries = []
     for c in chunks:
