@@ -37,7 +37,6 @@ def _input_path(output_stage) -> str:
 
 
 def _processed_frames(output_stage, path: str) -> list[float]:
-
     spec = output_stage.GetRootLayer().GetAttributeAtPath(f"{path}.{LIGHT_SCALE}")
     if spec is None:
         return []
@@ -59,7 +58,6 @@ def lighting_consistency_for_stage(output_stage_path, frames=None, radius: float
     where ``result`` is :func:`usd_gs.evaluation.lighting_metrics.lighting_consistency` and ``summary``
     :func:`usd_gs.evaluation.lighting_metrics.summarize`.
     """
-
 
     out_path = str(output_stage_path)
     out_stage = open_stage(out_path)

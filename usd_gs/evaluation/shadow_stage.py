@@ -79,7 +79,6 @@ class EvalContext:
     def receivers(self, frame: float):
         """``shot_shadows.Receivers`` of the scene prims at ``frame`` (static prims cached)."""
 
-
         parts = []
         for p in self.scene_paths:
             prim = self.stage.GetPrimAtPath(p)
@@ -93,8 +92,6 @@ class EvalContext:
         return Receivers.build(parts)
 
     def caster(self, frame: float) -> GaussianSet:
-
-
         return read_gaussian_prim(self.stage.GetPrimAtPath(self.avatar_path), Usd.TimeCode(frame))
 
     def mesh(self, frame: float) -> tuple[np.ndarray, np.ndarray]:
@@ -102,8 +99,6 @@ class EvalContext:
         return guide_mesh_world(self.stage.GetPrimAtPath(self.guide_path), frame)
 
     def lights(self, frame: float) -> list:
-
-
         lights, _ = read_stage_lights(self.stage, Usd.TimeCode(frame))
         if not lights:
             raise UserError(f"{self.label}: no light at frame {frame:g} (no /UsdGs/Lights prim and no UsdLux light "
@@ -111,13 +106,11 @@ class EvalContext:
         return lights
 
     def camera(self, frame: float):
-
         return Camera.from_usd(self.stage.GetPrimAtPath(self.camera_path), frame, width=self.width)
 
     def stored_strength(self, receivers, frame: float) -> np.ndarray:
         """(N,) ``1 - primvars:usdgs:transmittance`` of the receivers at ``frame`` (0 where the
         primvar has no value: never shadowed)."""
-
 
         out = np.zeros(receivers.gaussians.count)
         for p, (a, b) in receivers.ranges.items():
@@ -134,8 +127,6 @@ class EvalContext:
 
 
 def _is_animated(prim) -> bool:
-
-
     attr, _ = data_attribute(prim, POSITIONS)
     return bool(attr and attr.GetNumTimeSamples() > 1) or UsdGeom.Xformable(prim).TransformMightBeTimeVarying()
 
@@ -184,7 +175,6 @@ def find_guides(stage) -> dict[str, str]:
 def open_eval_stage(path: str, camera: str | None = None, avatar: str | None = None, width: int = 960,
                     require_processed: bool = True) -> EvalContext:
     """Open ``path`` and check it (module docstring); ``avatar`` picks the guide mesh by its target."""
-
 
     stage = open_stage(path)
     label = stage_label(stage)
@@ -287,7 +277,6 @@ class FrameInputs:
 
 
 def frame_inputs(ctx: EvalContext, frame: float) -> FrameInputs:
-
     caster = ctx.caster(frame)
     v, f = ctx.mesh(frame)
     return FrameInputs(float(frame), ctx.receivers(frame), caster, v, f, ctx.lights(frame), ctx.camera(frame),

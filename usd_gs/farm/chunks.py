@@ -99,7 +99,6 @@ def input_hash(stage_path: str) -> str:
     """SHA-256 over the bytes of every file layer the input stage uses (sorted by path), so any
     edit to the shot, a sublayer or a referenced asset layer changes it."""
 
-
     stage = open_stage(stage_path) if not isinstance(stage_path, Usd.Stage) else stage_path
     files = sorted({layer.realPath for layer in stage.GetUsedLayers() if layer.realPath})
     h = hashlib.sha256()

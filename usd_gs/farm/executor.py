@@ -39,7 +39,6 @@ _PROCESS_LOCK = threading.Lock()
 class ChunkFailed(RuntimeError):
     """A chunk failed more often than the retry limit allows."""
 
-
 @dataclass
 class ChunkTask:
     """Everything a worker needs to compute one chunk (picklable)."""
@@ -67,7 +66,6 @@ class ChunkResult:
 
 def run_chunk(task: ChunkTask) -> ChunkResult:
     """Compute one chunk into ``task.folder`` (see the module docstring). Safe to run twice."""
-
 
     t0 = time.perf_counter()
     started = time.time()
