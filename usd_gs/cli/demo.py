@@ -26,6 +26,8 @@ def cmd_demo_make(args) -> int:
                                  ("room_density", args.room_density), ("seed", args.seed)) if v is not None}
     if args.room_detail_density is not None:
         changes["room_detail_density"] = args.room_detail_density or None
+    if args.monkey:
+        changes["monkey"] = True
     opts = replace(base, **changes)
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
     if log:
@@ -76,6 +78,9 @@ def register_demo(sub, formatter):
                    help="folder holding humans/CesiumMan.glb and splats/{biker,guitar}.ply "
                         "(default: shared/data found beside the checkout or the current directory)")
     m.add_argument("--quick", action="store_true", help=QUICK_HELP)
+    m.add_argument("--monkey", action="store_true",
+                   help="also add /World/Monkey: the SOG flipbook sequences/monkey (50 frames, looped) as a "
+                        "time-sampled avatar on the floor (usd_gs/demo/monkey.py)")
     m.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     m.set_defaults(handler=cmd_demo_make)
 

@@ -158,6 +158,7 @@ class DemoOptions:
     guitar_gaussians: int | None = None
     seed: int = 0
     room_brick_size: int = 12000
+    monkey: bool = False  # add the SOG flipbook monkey (usd_gs/demo/monkey.py) as /World/Monkey
 
     def check(self) -> None:
         if self.frames < 1:
@@ -448,7 +449,8 @@ def _write_root(opts: DemoOptions, path: Path, data_folder: str, room) -> None:
     # away, relative to its anonymous root layer, and warn.
     layer = Sdf.Layer.CreateAnonymous(".usda")
     layer.TransferContent(stage.GetRootLayer())
-    layer.subLayerPaths = [f"./{data_folder}/{name}.usdc" for name in LAYER_NAMES]
+    names = (*LAYER_NAMES, "monkey") if opts.monkey else LAYER_NAMES
+    layer.subLayerPaths = [f"./{data_folder}/{name}.usdc" for name in names]
     save_stage_atomic(layer, path)
 
 
@@ -485,7 +487,7 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"{output}: cannot create the data folder {folder} ({exc.strerror or exc})") from None
-    layers = {name: folder / f"{name}.usdc" for name in LAYER_NAMES}
+    layers = {name: folder / f"{name}.usdc" for name in (*LAYER_NAMES, "monkey") if name != "monkey" or opts.monkey}
     say = log or (lambda *_: None)
 
     counts: dict[str, int] = {}
@@ -510,5 +512,10 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
         GUITAR_HEIGHT, opts.guitar_gaussians, opts.seed + 2,
         translate={None: GUITAR_POSITION},
         rotate_y={f: GUITAR_HEADING_DEG + GUITAR_TURN_DEG_PER_S * t for f, t in enumerate(times, start=1)})
+    if opts.monkey:
+        from usd_gs.demo.monkey import PRIM_PATH, write_monkey_layer
+
+        say("  monkey (SOG flipbook) ...")
+        counts[PRIM_PATH] = write_monkey_layer(opts.frames, data, layers["monkey"], FPS)
     _write_root(opts, root, folder.name, room)
     return DemoResult(root, layers, counts, opts.frames, _time.perf_counter() - t0)
