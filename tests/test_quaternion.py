@@ -6,17 +6,7 @@ import numpy as np
 import pytest
 
 from numba_kernels.quaternion import quat_to_rotation
-
-
-def _hamilton(w, x, y, z):
-    """Reference: R v = q v q* with the Hamilton product, q normalised (float64)."""
-    q = np.array([w, x, y, z]) / math.sqrt(w * w + x * x + y * y + z * z)
-
-    def mul(a, b):
-        return np.array([a[0] * b[0] - a[1:] @ b[1:], *(a[0] * b[1:] + b[0] * a[1:] + np.cross(a[1:], b[1:]))])
-
-    conj = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return np.stack([mul(mul(q, np.r_[0.0, e]), conj)[1:] for e in np.eye(3)], axis=1)
+from numba_kernels.reference.quaternion import hamilton_rotation as _hamilton
 
 
 def test_matches_hamilton_rotation_for_non_unit_quaternions():
