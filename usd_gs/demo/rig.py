@@ -317,11 +317,11 @@ def _umeyama(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def align_to_mesh(gs: GaussianSet, vertices: np.ndarray, up: str = "+y", facing: str = "auto",
-                  icp_iterations: int = 10, seed: int = 0) -> tuple[np.ndarray, dict]:
-    """4x4 similarity (column-vector) taking the Gaussian centres onto the skin ``vertices`` (rig
-    space), and a report dict (scale, facing, ICP residual in metres). See module docstring."""
-    from scipy.spatial import cKDTree
-
+                  icp_iterations: int = 10, seed: int = 0, faces: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """4x4 similarity (column-vector) taking the Gaussian centres onto the skin (rig space), and a
+    report dict (scale, facing, median distance in metres). ICP pairs each centre with its closest
+    point on the triangles ``faces`` of ``vertices`` (with the nearest vertex when ``faces`` is
+    None). See module docstring."""
     p = gs.positions.astype(np.float64)
     keep = gs.opacities > 0.3
     if keep.sum() >= 100:
@@ -346,20 +346,24 @@ def align_to_mesh(gs: GaussianSet, vertices: np.ndarray, up: str = "+y", facing:
     qc = np.array([(qlo[0] + qhi[0]) / 2, qlo[1], (qlo[2] + qhi[2]) / 2]) * s
     vc = np.array([(vlo[0] + vhi[0]) / 2, vlo[1], (vlo[2] + vhi[2]) / 2])
     m[:3, 3] = vc - qc
-    tree = cKDTree(vertices)
     rng = np.random.default_rng(seed)
-    sample = p[rng.choice(len(p), size=min(len(p), 5000), replace=False)]
-    resid = float("nan")
+    sample = p[rng.choice(len(p), size=min(len(p), 4000), replace=False)]
+
+    def closest(x):
+        if faces is None:
+            from scipy.spatial import cKDTree
+
+            dist, idx = cKDTree(vertices).query(x)
+            return vertices[idx], dist
+        face, bary, dist = closest_surface_points(vertices, faces, x)
+        return np.einsum("nk,nkd->nd", bary, vertices[faces[face]]), dist
+
     for _ in range(max(0, icp_iterations)):
         x = sample @ m[:3, :3].T + m[:3, 3]
-        dist, idx = tree.query(x)
-        med = np.median(dist)
-        ok = dist < 3 * med + 1e-9
-        resid = float(med)
-        step = _umeyama(x[ok], vertices[idx[ok]])
-        m = step @ m
-    x = sample @ m[:3, :3].T + m[:3, 3]
-    resid = float(np.median(tree.query(x)[0]))
+        target, dist = closest(x)
+        ok = dist < 3 * np.median(dist) + 1e-9
+        m = _umeyama(x[ok], target[ok]) @ m
+    resid = float(np.median(closest(sample @ m[:3, :3].T + m[:3, 3])[1]))
     scale = float(abs(np.linalg.det(m[:3, :3])) ** (1 / 3))
     return m, {"scale": scale, "facing": f.tolist(), "median_distance_m": resid}
 
@@ -456,7 +460,7 @@ def transfer_weights(src: RigSource, points: np.ndarray, influences: int = 4, ma
     step = max(1, 2_000_000 // max(nj, 1))
     for a in range(0, len(points), step):
         sl = slice(a, min(len(points), a + step))
-        dense = np.zeros((sl.stop - sl.start, nj))
+        dense = np.zeros((sl.stop - sl.start, max(nj, k)))  # padded: fewer joints than influences
         rows = np.repeat(np.arange(sl.stop - sl.start), idx.shape[1])
         np.add.at(dense, (rows, idx[sl].reshape(-1)), w[sl].reshape(-1))
         top = np.argsort(-dense, axis=1, kind="stable")[:, :k]
@@ -464,7 +468,7 @@ def transfer_weights(src: RigSource, points: np.ndarray, influences: int = 4, ma
         wk[sl] = np.take_along_axis(dense, top, axis=1)
     s = wk.sum(axis=1, keepdims=True)
     wk = wk / np.where(s > 0, s, 1.0)
-    ik = np.where(wk > 0, ik, ik[:, :1])
+    ik = np.where(wk > 0, ik, ik[:, :1])  # zero-weight slots (and padding) name the main joint
     return ik.astype(np.int32), wk.astype(np.float32), int(far.sum()), dist
 
 
@@ -568,11 +572,17 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     r_face = rotation_between(fwd, [0.0, 0.0, 1.0]) if abs(fwd[2] + 1) > 1e-9 else np.diag([-1.0, 1.0, -1.0])
     c = r_face @ r_up  # BVH axes -> rig axes
 
-    # scale: rest hip height over the lowest joint
-    src_h = src.heads[tindex[mapping[bvh.names[0]]], 1] - src.vertices[:, 1].min()
+    # scale: rest root height over the lowest joint (the hip height), else the joints' height range
     bvh_r = rest_pos @ c.T
-    bvh_h = bvh_r[root_b, 1] - bvh_r[:, 1].min()
-    scale = src_h / bvh_h if bvh_h > 1e-9 else 1.0
+    mapped_t = [tindex[v] for v in mapping.values()]
+    src_y = src.heads[mapped_t, 1]
+    src_h = src.heads[tindex[mapping[bvh.names[0]]], 1] - src_y.min()
+    bvh_h = bvh_r[root_b, 1] - bvh_r[[bindex[k] for k in mapping], 1].min()
+    if src_h > 1e-6 * max(np.ptp(src_y), 1e-12) and bvh_h > 1e-12:
+        scale = src_h / bvh_h
+    else:
+        rng_b = np.ptp(bvh_r[:, 1])
+        scale = np.ptp(src.heads[:, 1]) / rng_b if rng_b > 1e-12 else 1.0
 
     # rest bone directions
     corr = {}
@@ -691,7 +701,8 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     if align_matrix is not None:
         m, info = np.asarray(align_matrix, np.float64), {"explicit": True}
     else:
-        m, info = align_to_mesh(gs, src.vertices, up=up, facing=facing, icp_iterations=icp_iterations)
+        m, info = align_to_mesh(gs, src.vertices, up=up, facing=facing, icp_iterations=icp_iterations,
+                                faces=src.faces)
     say(f"  aligned: {json.dumps({k: (round(v, 5) if isinstance(v, float) else v) for k, v in info.items()})}")
     from usd_gs.errors import GaussianDataError
 

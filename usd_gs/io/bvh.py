@@ -108,8 +108,8 @@ def read_bvh(path) -> BvhMotion:
     i = 0
     n_lines = len(lines)
 
-    def err(msg):
-        return InputFormatError(f"{path}: line {i + 1}: {msg}")
+    def err(msg):  # i has moved past the current line: i is its 1-based number
+        return InputFormatError(f"{path}: line {i}: {msg}")
 
     while i < n_lines:
         tok = lines[i].split()

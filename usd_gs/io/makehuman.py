@@ -153,11 +153,14 @@ def load_makehuman(obj_path, skel_path, weights_path, influences: int = 4, units
     dense = np.zeros((len(verts), len(order)), np.float64)
     np.add.at(dense, (np.concatenate(rows), np.concatenate(cols)), np.maximum(np.concatenate(vals), 0.0))
     k = int(influences)
+    if dense.shape[1] < k:  # fewer bones than influences: pad with zero-weight columns
+        dense = np.concatenate([dense, np.zeros((len(verts), k - dense.shape[1]))], axis=1)
     top = np.argsort(-dense, axis=1, kind="stable")[:, :k]
     w = np.take_along_axis(dense, top, axis=1)
     s = w.sum(axis=1, keepdims=True)
     empty = s[:, 0] <= 0
     w = np.where(empty[:, None], np.eye(1, k)[0], w / np.where(s > 0, s, 1.0))
-    top = np.where(empty[:, None], int(np.flatnonzero(parents < 0)[0]), top)
+    root = int(np.flatnonzero(parents < 0)[0])
+    top = np.where(empty[:, None] | (top >= len(order)), root, top)
     return MakeHumanRig(str(obj_path), verts, faces, order, parents, heads, tails, top.astype(np.int32),
                         w.astype(np.float32))
