@@ -10,6 +10,7 @@ from numba_kernels import octahedral as oc
 from numba_kernels.dgsm_build import EPS_PAIR, TILE, _bin_tiles_chunked, build_point, roi_voxels, t_max_for
 from numba_kernels.dgsm_exact import optical_depth_point, transmittance_point
 from numba_kernels.dgsm_model import pack_gaussians
+from numba_kernels.reference import dgsm_build as reference
 
 LIGHT = np.array([0.2, 2.0, 0.1])
 
@@ -86,24 +87,6 @@ def test_tile_culling_error_within_k_sigma_bound():
     np.testing.assert_allclose(wide.values, full.values, atol=1e-6)  # ... and vanishes at k = 8
 
 
-def _tile_lists_naive(fx, fy, rp, is_glob, w, active):
-    """Per tile, the occluders whose pixel box (centre +- radius) covers it, fold-wrapped."""
-    wt = w // TILE
-    lists = [[] for _ in range(wt * wt)]
-    for i in range(len(fx)):
-        if is_glob[i]:
-            continue
-        tiles = set()
-        for tx in range(math.floor((fx[i] - rp[i]) / TILE), math.floor((fx[i] + rp[i]) / TILE) + 1):
-            for ty in range(math.floor((fy[i] - rp[i]) / TILE), math.floor((fy[i] + rp[i]) / TILE) + 1):
-                a, b = oc.wrap_pixel(tx, ty, wt)
-                tiles.add(a * wt + b)
-        for t in sorted(tiles):
-            if active[t]:
-                lists[t].append(i)
-    return lists
-
-
 @pytest.mark.parametrize("n", [0, 5, 3000])
 def test_parallel_tile_lists_equal_naive_binning(n):
     rng = np.random.default_rng(n)
@@ -114,7 +97,7 @@ def test_parallel_tile_lists_equal_naive_binning(n):
     active = rng.random((w // TILE) ** 2) < 0.7
     start, items = _bin_tiles_chunked(fx, fy, rp, is_glob, w, active)
     got = [items[start[t]:start[t + 1]].tolist() for t in range(len(start) - 1)]
-    assert got == _tile_lists_naive(fx, fy, rp, is_glob, w, active)
+    assert got == reference.tile_lists(fx, fy, rp, is_glob, w, active, TILE)
 
 
 def test_bin_skip_equals_all_bins_and_saves_work():

@@ -6,11 +6,7 @@ import numpy as np
 import pytest
 
 from numba_kernels.grid_neighbours import build_grid, radius_count, radius_neighbours, radius_sum
-
-
-def _brute(points, queries, radius, inner=0.0):
-    d2 = ((queries[:, None, :] - points[None, :, :]) ** 2).sum(-1)
-    return (d2 <= radius * radius) & (d2 >= inner * inner)
+from numba_kernels.reference.grid_neighbours import within as _brute
 
 
 @pytest.mark.parametrize("cell, radius, inner", [(0.2, 0.2, 0.0), (0.2, 0.25, 0.05), (0.05, 0.17, 0.0),

@@ -4,17 +4,7 @@ import numpy as np
 import pytest
 
 from numba_kernels import octahedral as oc
-
-
-def _eq6(d):
-    """Eq. 6 written directly (sgn(0) = +1)."""
-    q = d / np.abs(d).sum()
-    if q[2] >= 0:
-        return np.array([q[0], q[1]])
-    sx = 1.0 if q[0] >= 0 else -1.0
-    sy = 1.0 if q[1] >= 0 else -1.0
-    return np.array([sx * (1 - abs(q[1])), sy * (1 - abs(q[0]))])
-
+from numba_kernels.reference import octahedral as reference
 
 SPECIAL = np.array([
     [0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0],  # poles and equator axes
@@ -29,7 +19,7 @@ def test_encode_matches_equation_6_and_roundtrip():
     d = np.concatenate([SPECIAL, rng.normal(size=(2000, 3))])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     uv = oc.encode(d)
-    ref = np.array([_eq6(x) for x in d])
+    ref = np.array([reference.encode(x) for x in d])
     np.testing.assert_allclose(uv, ref, atol=1e-15)
     assert np.all(np.abs(uv) <= 1.0)
     np.testing.assert_allclose(oc.decode(uv), d, atol=1e-14)
@@ -102,3 +92,11 @@ def test_lipschitz_bound_holds():
     g = np.linalg.norm(uv1 - uv0, axis=1) / h
     g = g[g < 10]  # drop pairs straddling the fold (a jump in uv, continuous on the sphere)
     assert g.max() <= oc.OCT_LIPSCHITZ
+
+
+@pytest.mark.parametrize("w", [1, 2, 8, 16])
+def test_wrap_pixel_matches_the_uv_fold_reference(w):
+    """Every pixel up to ``w`` outside the atlas, corners included, against the uv fold formula."""
+    for i in range(-w, 2 * w):
+        for j in range(-w, 2 * w):
+            assert tuple(int(x) for x in oc.wrap_pixel(i, j, w)) == reference.wrap_pixel(i, j, w)
