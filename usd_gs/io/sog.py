@@ -140,7 +140,8 @@ def _decode_webp(label: str, name: str, data: bytes, need: int) -> np.ndarray:
             if w * h < need:
                 raise InputFormatError(f"{label}: image '{name}' is {w}x{h} = {w * h} pixels, fewer than "
                                        f"meta.json 'count' {need}")
-            px = np.asarray(im.convert("RGBA"))
+            im.load()
+            px = np.asarray(im if im.mode == "RGBA" else im.convert("RGBA"))
     except InputFormatError:
         raise
     except Exception as exc:  # Pillow raises many types (OSError, SyntaxError, ValueError...) on corrupt data
