@@ -2,49 +2,20 @@
 
 from __future__ import annotations
 
-import math
-
 import mpmath
 import numpy as np
 import pytest
-from scipy.special import sph_harm_y
 
 from numba_kernels import cubemap_dirs as cm
 from numba_kernels import sh_real
+from numba_kernels.reference.sh_real import real_sh_basis as _scipy_real_sh
+from numba_kernels.reference.sh_real import sphere_quadrature as _sphere_quadrature
 from usd_gs import sh3dgs
 
 
 def _random_dirs(n, seed=0):
     d = np.random.default_rng(seed).normal(size=(n, 3))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
-def _scipy_real_sh(dirs, degree):
-    """RH real SH from scipy's complex SH (which includes the Condon-Shortley phase)."""
-    theta = np.arccos(np.clip(dirs[:, 2], -1, 1))
-    phi = np.arctan2(dirs[:, 1], dirs[:, 0])
-    cols = []
-    for l in range(degree + 1):
-        for m in range(-l, l + 1):
-            y = sph_harm_y(l, abs(m), theta, phi)
-            if m == 0:
-                cols.append(y.real)
-            elif m > 0:
-                cols.append(math.sqrt(2) * (-1) ** m * y.real)
-            else:
-                cols.append(math.sqrt(2) * (-1) ** m * y.imag)
-    return np.stack(cols, axis=1)
-
-
-def _sphere_quadrature(n_theta, n_phi):
-    """Gauss-Legendre in cos(theta) x uniform phi: exact for polynomials of degree < min(2 n_theta, n_phi)."""
-    x, wx = np.polynomial.legendre.leggauss(n_theta)
-    phi = 2 * np.pi * np.arange(n_phi) / n_phi
-    z, p = np.meshgrid(x, phi, indexing="ij")
-    r = np.sqrt(1 - z * z)
-    dirs = np.stack([r * np.cos(p), r * np.sin(p), z], -1).reshape(-1, 3)
-    w = np.repeat(wx * 2 * np.pi / n_phi, n_phi)
-    return dirs, w
 
 
 def test_basis_matches_scipy_degree_8():

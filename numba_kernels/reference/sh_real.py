@@ -44,3 +44,15 @@ def threedgs_color(sh, dirs) -> np.ndarray:
     degree = int(round(math.sqrt(sh.shape[1]))) - 1
     basis = threedgs_basis(np.broadcast_to(np.asarray(dirs, np.float64), (sh.shape[0], 3)), degree)
     return 0.5 + np.einsum("nk,nkc->nc", basis, sh)
+
+
+def sphere_quadrature(n_theta: int, n_phi: int, phi_offset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre in cos(theta) x ``n_phi`` uniform phi (``2 pi (k + phi_offset) / n_phi``):
+    unit directions (n_theta n_phi, 3) and solid-angle weights; exact for polynomials of degree
+    < min(2 n_theta, n_phi) on the sphere."""
+    x, wx = np.polynomial.legendre.leggauss(n_theta)
+    phi = 2 * np.pi * (np.arange(n_phi) + phi_offset) / n_phi
+    z, p = np.meshgrid(x, phi, indexing="ij")
+    r = np.sqrt(1 - z * z)
+    dirs = np.stack([r * np.cos(p), r * np.sin(p), z], -1).reshape(-1, 3)
+    return dirs, np.repeat(wx * 2 * np.pi / n_phi, n_phi)
