@@ -2,7 +2,9 @@
 
 Exit codes: 0 success; 1 internal error (or, for ``validate``, problems found);
 2 user error (bad input or options: a one-line message naming file, prim, attribute
-and element); 130 interrupted. ``--debug`` prints the traceback of any error.
+and element; also an unwritable output, a full disk or a request too large for memory);
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM): no partial file is left either way.
+``--debug`` prints the traceback of any error.
 
 Each subcommand lives in its own module and registers itself through ``COMMANDS``;
 heavy imports (pxr, numba) happen inside the handlers so ``usdgs --help`` and
@@ -12,6 +14,7 @@ heavy imports (pxr, numba) happen inside the handlers so ``usdgs --help`` and
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 import traceback
 
@@ -50,6 +53,10 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
 COMMAND_MODULES = ("io", "demo", "process", "render", "farm", "eval", "bench", "rig")
 
 
+#: Commands that read a USD stage (they get ``--allow-missing``).
+STAGE_COMMANDS = ("export", "inspect", "validate", "process", "render", "lights", "assemble", "eval")
+
+
 def build_parser() -> argparse.ArgumentParser:
     import importlib
 
@@ -62,6 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f"usd_gs.cli.{name}")
         for register in module.REGISTRARS:
             register(sub, _Formatter)
+    for name, p in sub.choices.items():
+        if name in STAGE_COMMANDS:
+            p.add_argument("--allow-missing", action="store_true",
+                           help="use a stage whose sublayers, references or payloads are partly missing (by default "
+                                "a missing layer is an error)")
     return parser
 
 
@@ -73,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
+    from usd_gs.usd.stage import set_allow_missing
+
+    set_allow_missing(bool(getattr(args, "allow_missing", False)))
+    previous = _handle_sigterm()
     try:
         return int(args.handler(args) or 0)
     except UserError as exc:
@@ -80,15 +96,64 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"usdgs {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"usdgs {args.command}: interrupted; no output was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"usdgs {args.command}: {how}; no partial file was left (files finished before stay)", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    except MemoryError as exc:
+        if args.debug:
+            traceback.print_exc()
+        print(f"usdgs {args.command}: error: not enough memory for this request ({_one_line(exc)}); "
+              "use smaller sizes or fewer Gaussians", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if args.debug:
+            traceback.print_exc()
+        if exc.errno in _USER_ERRNOS:
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"usdgs {args.command}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
+            return 2
+        print(f"usdgs {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
+              "(run with --debug for the traceback)", file=sys.stderr)
+        return 1
     except Exception as exc:  # noqa: BLE001 - the last line of defence of a CLI
         if args.debug:
             traceback.print_exc()
         print(f"usdgs {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
               "(run with --debug for the traceback)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so every atomic write and temp folder is cleaned up."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _handle_sigterm():
+    """Install the SIGTERM handler (main thread only); returns the previous handler or None."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except (ValueError, OSError):
+        return None
+
+
+#: errno values of OSError that are the user's environment (permissions, full disk, a file where a
+#: folder should be), reported as user errors (exit 2) naming the file.
+_USER_ERRNOS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EISDIR, errno.ENOTDIR,
+                errno.EEXIST, errno.ENOENT, errno.ENAMETOOLONG}
 
 
 def _one_line(exc: BaseException) -> str:

@@ -95,7 +95,10 @@ def cmd_bench(args) -> int:
     results["command"] = "usdgs bench" + (" --quick" if args.quick else "") + f" -o {args.output}" + \
         "".join(f" --stage {s}" for s in args.stage or ())
     report = write_report(results, out_dir)
-    (out_dir / "results.json").write_text(json.dumps(results, indent=1), encoding="utf-8")
+    from usd_gs.io.atomic import atomic_output
+
+    with atomic_output(out_dir / "results.json") as tmp:
+        tmp.write_text(json.dumps(results, indent=1), encoding="utf-8")
     if args.json:
         json.dump(results, sys.stdout, indent=1)
         print()

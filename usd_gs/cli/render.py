@@ -65,14 +65,16 @@ def parse_background(text: str) -> tuple[float, float, float]:
 
 
 def write_exr_rgba(path: str, rgb, alpha) -> None:
-    """Linear float32 RGBA OpenEXR (ZIP compression), no colour transform."""
+    """Linear float32 RGBA OpenEXR (ZIP compression), no colour transform; written atomically."""
     import numpy as np
     import OpenEXR
 
+    from usd_gs.io.atomic import atomic_output
+
     rgba = np.ascontiguousarray(np.concatenate([rgb, alpha[..., None]], axis=-1), dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, {"RGBA": rgba}) as f:
-        f.write(str(path))
+    with atomic_output(path) as tmp, OpenEXR.File(header, {"RGBA": rgba}) as f:
+        f.write(str(tmp))
 
 
 def cmd_render(args) -> int:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from usd_gs.errors import UserError
+from usd_gs.io.atomic import atomic_output
 
 PAPER = {"A sampling": {"centre sample": (0.203, 0.622, 0.585), "deterministic 7-point stencil": (0.167, 0.712, 0.662),
                         "MC footprint, 8 samples": (0.058, 0.830, 0.796)},
@@ -81,7 +82,8 @@ def plot_time_vs_error(rows: list[dict], path: Path, title: str) -> list[Path]:
         ax.grid(alpha=0.3)
         fig.tight_layout()
         p = Path(f"{path}_{key}.png")
-        fig.savefig(p)
+        with atomic_output(p) as tmp:
+            fig.savefig(tmp, format="png")
         plt.close(fig)
         out.append(p)
     return out
@@ -125,5 +127,6 @@ def write_report(results: dict, out_dir: Path) -> Path:
         pl = plot_time_vs_error(rows, out_dir / f"{st['key']}_time_vs_error", st["label"])
         lines += ["### Plots", ""] + [f"![{p.stem}]({p.name})" for p in pl] + [""]
     path = out_dir / "report.md"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with atomic_output(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

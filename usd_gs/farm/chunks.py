@@ -134,6 +134,7 @@ def options_hash(options, lights, anchor: float | None = None) -> str:
 
     opts = _canon(options)
     opts.pop("frames", None)
+    opts.pop("allow_missing", None)  # how the input is opened, not what is computed
     text = json.dumps({"options": opts, "lights": _canon(lights), "anchor": _canon(anchor), "version": __version__},
                       sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()

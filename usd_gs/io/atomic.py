@@ -1,17 +1,33 @@
 """Atomic file output: write to a temporary file beside the target, then rename.
 
-An interrupted or failed write (exception, Ctrl-C) leaves no partial file and leaves an
-existing target intact. The finished file gets the usual permissions (0666 minus the
-process umask), not the 0600 of ``tempfile.mkstemp``.
+An interrupted or failed write (exception, Ctrl-C, SIGTERM) leaves no partial file and
+leaves an existing target intact. The finished file gets the usual permissions (0666 minus
+the process umask), not the 0600 of ``tempfile.mkstemp``.
+
+A process killed outright (SIGKILL, power loss) cannot clean up: its temporary files stay.
+Their names carry the writer's process id and host (:func:`temp_tag`,
+``.<stem>.tmp<pid>-<host>.<random><suffix>``; temp folders ``...tmp<pid>-<host>``), so the next
+write into the same folder removes those of processes that no longer run on this host
+(:func:`remove_stale_temps`); temporary files of live processes and of other hosts are left.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
+import shutil
+import socket
 import tempfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
+
+#: Matches the temporary names this module (and the pipeline's temp folders) make; groups pid, host.
+TEMP_NAME = re.compile(r"^\..*\.tmp(?P<pid>\d+)-(?P<host>[0-9a-f]{6})(?:\.[A-Za-z0-9_]+)?(?:\.[^.]+)?$"
+                       r"|^\..*_probes\.tmp(?P<pid2>\d+)$")  # the second: probe folders of older versions
+
+_swept: set[str] = set()
 
 
 def _umask() -> int:
@@ -20,15 +36,96 @@ def _umask() -> int:
     return mask
 
 
+def host_tag() -> str:
+    """Six hex digits naming this host (CRC-32 of the host name)."""
+    return f"{zlib.crc32(socket.gethostname().encode()) & 0xFFFFFF:06x}"
+
+
+def temp_tag() -> str:
+    """``tmp<pid>-<host>``: the part of a temporary name that says which process made it."""
+    return f"tmp{os.getpid()}-{host_tag()}"
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    except OSError:
+        return True
+    return True
+
+
+def remove_stale_temps(folder, force: bool = False) -> list[str]:
+    """Remove the temporary files and folders in ``folder`` (not recursive) left by killed
+    processes of this host (:data:`TEMP_NAME`, pid no longer running). Each folder is swept once
+    per process unless ``force``. Returns the names removed; errors are ignored."""
+    folder = os.path.abspath(os.fspath(folder))
+    if not force and folder in _swept:
+        return []
+    _swept.add(folder)
+    removed = []
+    here = host_tag()
+    try:
+        names = [n for n in os.listdir(folder) if n.startswith(".") and ".tmp" in n]
+    except OSError:
+        return removed
+    for name in names:
+        m = TEMP_NAME.match(name)
+        if not m:
+            continue
+        pid, host = (m.group("pid"), m.group("host")) if m.group("pid") else (m.group("pid2"), here)
+        if host != here or _alive(int(pid)):
+            continue
+        path = os.path.join(folder, name)
+        with contextlib.suppress(OSError):
+            if os.path.isdir(path) and not os.path.islink(path):
+                shutil.rmtree(path)
+            else:
+                os.unlink(path)
+            removed.append(name)
+    return removed
+
+
+def check_writable_folder(folder, what: str) -> None:
+    """``UserError`` naming ``what`` unless a file can be created in ``folder`` (tries it)."""
+    from usd_gs.errors import UserError
+
+    folder = os.path.abspath(os.fspath(folder))
+    if not os.path.isdir(folder):
+        raise UserError(f"{what}: output directory {folder} does not exist")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".usdgs-check.{temp_tag()}.", dir=folder)
+    except OSError as exc:
+        raise UserError(f"{what}: cannot write into {folder} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
 @contextlib.contextmanager
 def atomic_output(target, durable: bool = False) -> Iterator[Path]:
     """Yield a temporary path in ``target``'s directory; on success rename it onto ``target``.
 
     The temporary name keeps ``target``'s suffix (USD picks the file format from it).
-    ``durable`` fsyncs the file before the rename (survives power loss; slower).
+    ``durable`` fsyncs the file before the rename (survives power loss; slower). A target that
+    is an existing directory, or a folder that cannot be written, raises ``UserError``.
     """
+    from usd_gs.errors import UserError
+
     target = Path(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".tmp" + target.suffix, dir=target.parent)
+    if target.is_dir():
+        raise UserError(f"{target}: is an existing directory, not a file that can be written")
+    remove_stale_temps(target.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.{temp_tag()}.", suffix=target.suffix, dir=target.parent)
+    except FileNotFoundError:
+        raise UserError(f"{target}: output directory {target.parent.absolute()} does not exist") from None
+    except OSError as exc:
+        raise UserError(f"{target}: cannot write into {target.parent.absolute()} ({exc.strerror or exc})") from None
     os.close(fd)
     try:
         yield Path(tmp)
@@ -36,7 +133,14 @@ def atomic_output(target, durable: bool = False) -> Iterator[Path]:
             with open(tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, target)
+        try:
+            os.replace(tmp, target)
+        except IsADirectoryError:
+            raise UserError(f"{target}: is an existing directory, not a file that can be written") from None
+        except OSError as exc:
+            if isinstance(exc, (PermissionError,)):
+                raise UserError(f"{target}: cannot be replaced ({exc.strerror or exc})") from None
+            raise
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)

@@ -277,7 +277,7 @@ def read_envmap(path) -> np.ndarray:
 
 
 def write_exr(path, img: np.ndarray, half: bool = False, latlong: bool = True) -> Path:
-    """Write an (H, W, 3) linear RGB image as OpenEXR (ZIP, float32 or half).
+    """Write an (H, W, 3) linear RGB image as OpenEXR (ZIP, float32 or half), atomically.
 
     With ``latlong`` the header carries ``envmap = LATLONG``. Returns the path.
     """
@@ -290,9 +290,11 @@ def write_exr(path, img: np.ndarray, half: bool = False, latlong: bool = True) -
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     if latlong:
         header["envmap"] = OpenEXR.ENVMAP_LATLONG
+    from usd_gs.io.atomic import atomic_output
+
     path = Path(path)
-    with OpenEXR.File(header, {"RGB": arr}) as f:
-        f.write(str(path))
+    with atomic_output(path) as tmp, OpenEXR.File(header, {"RGB": arr}) as f:
+        f.write(str(tmp))
     return path
 
 

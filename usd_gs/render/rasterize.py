@@ -102,7 +102,7 @@ def to_srgb8(rgb: np.ndarray) -> np.ndarray:
 
 
 def write_png(path, image: np.ndarray, srgb: bool = False) -> Path:
-    """Write an 8-bit PNG with Pillow.
+    """Write an 8-bit PNG with Pillow, atomically (``usd_gs.io.atomic``).
 
     image: (H,W) grey, (H,W,3) RGB or (H,W,4) RGBA. Float arrays are clipped to [0, 1] and
     scaled by 255 as they are (the default: 3DGS colours are already display-referred, the
@@ -122,9 +122,12 @@ def write_png(path, image: np.ndarray, srgb: bool = False) -> Path:
             img = np.round(np.clip(np.nan_to_num(img.astype(np.float64)), 0, 1) * 255).astype(np.uint8)
     from PIL import Image
 
+    from usd_gs.io.atomic import atomic_output
+
     mode = {1: "L", 3: "RGB", 4: "RGBA"}[img.shape[2]]
     path = Path(path)
-    Image.fromarray(img[..., 0] if mode == "L" else img, mode).save(path, format="PNG")
+    with atomic_output(path) as tmp:
+        Image.fromarray(img[..., 0] if mode == "L" else img, mode).save(tmp, format="PNG")
     return path
 
 

@@ -10,10 +10,29 @@ from usd_gs.errors import InputFormatError, UserError
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
 
 
-def open_stage(path: str):
+_ALLOW_MISSING = [False]
+
+#: Composition errors that mean part of the stage is absent (a layer or prim that cannot be found).
+MISSING_ERRORS = ("ErrorInvalidSublayerPath", "ErrorInvalidAssetPath", "ErrorUnresolvedPrimPath")
+
+
+def set_allow_missing(value: bool) -> None:
+    """The process-wide default of ``open_stage(..., allow_missing=None)`` (the CLI's ``--allow-missing``)."""
+    _ALLOW_MISSING[0] = bool(value)
+
+
+def missing_layers(stage) -> list[str]:
+    """One line per missing sublayer, reference, payload or referenced prim of ``stage``
+    (``Usd.Stage.GetCompositionErrors``), in USD's wording."""
+    return [" ".join(str(e).split()) for e in stage.GetCompositionErrors() if type(e).__name__ in MISSING_ERRORS]
+
+
+def open_stage(path: str, allow_missing: bool | None = None):
     """Open a USD stage read-only in intent (nothing here ever saves it).
 
-    Raises ``InputFormatError`` naming the file when it is missing or unreadable.
+    Raises ``InputFormatError`` naming the file when it is missing or unreadable, and, unless
+    ``allow_missing`` (None: the :func:`set_allow_missing` default), when a sublayer, reference
+    or payload it composes cannot be found (USD itself only warns and composes the rest).
     """
     from pxr import Tf, Usd
 
@@ -28,6 +47,12 @@ def open_stage(path: str):
         raise InputFormatError(f"{path}: cannot be opened as a USD stage ({msg[:300]})") from None
     if stage is None:
         raise InputFormatError(f"{path}: cannot be opened as a USD stage")
+    if not (_ALLOW_MISSING[0] if allow_missing is None else allow_missing):
+        missing = missing_layers(stage)
+        if missing:
+            more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+            raise InputFormatError(f"{path}: part of the stage is missing: {missing[0]}{more}; "
+                                   "fix the path or pass --allow-missing to use the stage without it")
     return stage
 
 
