@@ -50,6 +50,12 @@ from usd_gs.gaussians import GaussianSet
 from usd_gs.io.ply import _LOG_SCALE_MAX, scales_from_log
 
 _SH_REST = {1: 3, 2: 8, 3: 15}
+# |sign(x) ln(|x| + 1)| above this gives a position beyond the float32 range
+_LOG_POS_MAX = float(np.log(np.finfo(np.float32).max))
+# a quaternion byte b -> (b/255*2 - 1) / sqrt(2)
+_QUAT_LUT = (np.arange(256, dtype=np.float64) / 255.0 * 2.0 - 1.0) / np.sqrt(2.0)
+# column of (a, b, c, largest) holding w, x, y, z, for each largest-component tag 0..3
+_QUAT_PERM = np.array([[3, 0, 1, 2], [0, 3, 1, 2], [0, 1, 3, 2], [0, 1, 2, 3]], dtype=np.intp)
 
 
 # ------------------------------------------------------------------------------ containers
@@ -89,6 +95,15 @@ def _open_zip(label: str, path: Path) -> zipfile.ZipFile:
 
 
 # ----------------------------------------------------------------------------------- meta
+def _finite_numbers(v: list) -> bool:
+    """A flat list of finite JSON numbers (no booleans, strings or nested lists)."""
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return a.ndim == 1 and bool(np.isfinite(a).all()) and not any(isinstance(x, bool) for x in v)
+
+
 def _field(label: str, meta, dotted: str, kind):
     cur = meta
     for part in dotted.split("."):
@@ -100,9 +115,7 @@ def _field(label: str, meta, dotted: str, kind):
         "vec3": lambda v: (isinstance(v, list) and len(v) == 3
                            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
                                    for x in v)),
-        "codebook": lambda v: (isinstance(v, list) and 0 < len(v) <= 256
-                               and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
-                                       for x in v)),
+        "codebook": lambda v: isinstance(v, list) and 0 < len(v) <= 256 and _finite_numbers(v),
         "files": lambda v: isinstance(v, list) and len(v) >= 1 and all(isinstance(x, str) and x for x in v),
     }[kind]
     if not ok(cur):
@@ -151,7 +164,7 @@ def _decode_webp(label: str, name: str, data: bytes, need: int) -> np.ndarray:
 
 
 def _lookup(label: str, field: str, codebook: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    if idx.size and int(idx.max()) >= len(codebook):
+    if len(codebook) < 256 and idx.size and int(idx.max()) >= len(codebook):
         i = first_bad_index(idx >= len(codebook))
         raise InputFormatError(f"{label}: '{field}' index {int(idx.reshape(len(idx), -1)[i].max())} at Gaussian {i} "
                                f"is past the {len(codebook)}-entry codebook")
@@ -173,6 +186,9 @@ class _Plan:
         if len(mfiles) < 2:
             raise InputFormatError(f"{label}: meta.json field 'means.files' needs 2 files (low and high bytes)")
         self.scb = np.asarray(_field(label, meta, "scales.codebook", "codebook"), np.float32)
+        if self.scb.max() > _LOG_SCALE_MAX:
+            raise InputFormatError(f"{label}: meta.json 'scales.codebook' value {float(self.scb.max())!r} "
+                                   "overflows float32 after exp()")
         self.qfile = _field(label, meta, "quats.files", "files")[0]
         self.ccb = np.asarray(_field(label, meta, "sh0.codebook", "codebook"), np.float32)
         self.jobs = {"means_l": (mfiles[0], n), "means_u": (mfiles[1], n), "quats": (self.qfile, n),
@@ -218,43 +234,33 @@ def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
     imgs = {key: _decode_webp(label, jobs[key][0], raw[key], jobs[key][1]) for key in jobs}
     mins, maxs, qfile, bands = plan.mins, plan.maxs, plan.qfile, plan.bands
     sl = slice(start, start + n)
-    lo = imgs["means_l"][0][:n, :3].astype(np.uint32)
-    hi = imgs["means_u"][0][:n, :3].astype(np.uint32)
     rng = maxs - mins
     rng[rng == 0] = 1.0
-    v = mins + rng * ((lo | (hi << 8)).astype(np.float64) / 65535.0)
+    if max(np.abs(mins).max(), np.abs(mins + rng).max()) > _LOG_POS_MAX:
+        raise InputFormatError(f"{label}: meta.json 'means.mins'/'means.maxs' {mins.tolist()}/{maxs.tolist()} "
+                               "decode to positions outside the float32 range")
+    u = imgs["means_l"][0][:n, :3].astype(np.uint16)
+    u |= imgs["means_u"][0][:n, :3].astype(np.uint16) << 8
+    v = u / 65535.0  # the reference's order of operations: min + range * (u / 65535)
+    v *= rng
+    v += mins
     positions = out["positions"][sl]
     positions[...] = np.copysign(np.expm1(np.abs(v)), v)
-    bad = ~np.isfinite(positions)
-    i = first_bad_index(bad) if n else -1
-    if i >= 0:
-        raise InputFormatError(f"{label}: 'means' of Gaussian {i} decodes outside the float32 range "
-                               "(meta.json 'means.mins'/'means.maxs' too large)")
 
     qpx = imgs["quats"][0][:n]
-    tag = qpx[:, 3].astype(np.intp) - 252
-    i = first_bad_index((tag < 0) | (tag > 3)) if n else -1
-    if i >= 0:
+    if n and qpx[:, 3].min() < 252:
+        i = int(np.flatnonzero(qpx[:, 3] < 252)[0])
         raise InputFormatError(f"{label}: image '{qfile}' pixel {i} has alpha {int(qpx[i, 3])}; "
                                "a quaternion tag must be 252..255")
-    abc = (qpx[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / np.sqrt(2.0)
-    q = np.empty((n, 4), np.float64)
-    rows = np.arange(n)
-    q[rows, tag] = np.sqrt(np.maximum(0.0, 1.0 - np.einsum("ij,ij->i", abc, abc)))
-    others = np.asarray(((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)))[tag]
-    q[rows[:, None], others] = abc
-    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
-    i = first_bad_index(norm == 0) if n else -1
-    if i >= 0:
-        raise InputFormatError(f"{label}: image '{qfile}' pixel {i} decodes to a zero quaternion")
-    out["orientations"][sl] = q / norm[:, None]
+    tag = qpx[:, 3] - np.uint8(252)
+    full = np.empty((n, 4), np.float64)
+    full[:, :3] = _QUAT_LUT[qpx[:, :3]]
+    full[:, 3] = np.sqrt(np.maximum(0.0, 1.0 - np.einsum("ij,ij->i", full[:, :3], full[:, :3])))
+    q = np.take_along_axis(full, _QUAT_PERM[tag], axis=1)
+    # never zero: the rebuilt component is 1 when the other three are 0
+    out["orientations"][sl] = q / np.sqrt(np.einsum("ij,ij->i", q, q))[:, None]
 
-    log_scales = out["log_scales"][sl]
-    log_scales[...] = _lookup(label, "scales", plan.scb, imgs["scales"][0][:n, :3])
-    i = first_bad_index(log_scales > _LOG_SCALE_MAX) if n else -1
-    if i >= 0:
-        raise InputFormatError(f"{label}: meta.json 'scales.codebook' value {log_scales[i].max()} (Gaussian {i}) "
-                               "overflows float32 after exp()")
+    out["log_scales"][sl] = _lookup(label, "scales", plan.scb, imgs["scales"][0][:n, :3])
     c0 = imgs["sh0"][0][:n]
     sh = out["sh"][sl]
     sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0[:, :3])
@@ -272,8 +278,8 @@ def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
         pal = _lookup(label, "shN", hcb, cen.reshape(ch * 64, rest, 4)[:palette, :, :3])  # (P, K-1, 3)
         lab = imgs["labels"][0][:n]
         labels = lab[:, 0].astype(np.intp) | (lab[:, 1].astype(np.intp) << 8)
-        i = first_bad_index(labels >= palette) if n else -1
-        if i >= 0:
+        if n and labels.max() >= palette:
+            i = int(np.flatnonzero(labels >= palette)[0])
             raise InputFormatError(f"{label}: image '{hfiles[1]}' pixel {i} has label {int(labels[i])}, past "
                                    f"meta.json 'shN.count' {palette}")
         sh[:, 1:(bands + 1) ** 2, :] = pal[labels]
