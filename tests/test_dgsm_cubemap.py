@@ -5,6 +5,7 @@ from dgsm_testutil import random_occluders
 
 from numba_kernels.cubemap import build_point_cube, cube_decode, cube_encode, lookup_point_cube, pixel_directions
 from numba_kernels.dgsm_exact import transmittance_point
+from numba_kernels.reference import cubemap as reference
 
 
 def test_encode_decode_roundtrip_and_faces():
@@ -17,6 +18,18 @@ def test_encode_decode_roundtrip_and_faces():
         if k < 6:
             assert f == [0, 2, 4, 1, 3, 5][k] and s == 0 and t == 0
         np.testing.assert_allclose(cube_decode(f, s, t), v, atol=1e-15)
+
+
+def test_encode_decode_match_the_reference():
+    """Face mapping against ``reference.cubemap`` (module docstring): axes, ties, random directions."""
+    rng = np.random.default_rng(3)
+    d = np.concatenate([np.eye(3), -np.eye(3), [[1, 1, 0], [0, -1, 1], [-1, 1, 1.0]], rng.normal(size=(300, 3))])
+    for v in d:
+        f, s, t = cube_encode(*v)
+        g, s_ref, t_ref = reference.encode(v)
+        assert f == g
+        np.testing.assert_allclose([s, t], [s_ref, t_ref], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(cube_decode(f, s, t), reference.decode(f, s, t), rtol=0, atol=1e-15)
 
 
 def test_cube_voxels_exact_and_lookup_close():

@@ -10,6 +10,7 @@ from numba_kernels import octahedral as oc
 from numba_kernels.dgsm_build import Atlas, build_point
 from numba_kernels.dgsm_exact import transmittance_point
 from numba_kernels.dgsm_sample import footprint_points, lookup_point, stencil_offsets, weighted_mean
+from numba_kernels.reference import dgsm_sample as reference
 
 LIGHT = np.array([0.3, -0.2, 0.5])
 
@@ -41,26 +42,22 @@ def test_trilinear_matches_manual_interpolation():
     rng = np.random.default_rng(0)
     w, K, tmax = 16, 8, 4.0
     at = _atlas_from_function(_smooth, w, K, tmax)
-    dense = at.dense()
     d = rng.normal(size=(300, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t = rng.uniform(0.6, 3.7, 300)
     got = lookup_point(at, LIGHT, LIGHT + t[:, None] * d)
-    uv = oc.encode(d)
-    f = (uv + 1) * w / 2 - 0.5
-    i0 = np.floor(f).astype(int)
-    fr = f - i0
-    fk = t * K / tmax - 0.5
-    k0 = np.floor(fk).astype(int)
-    wk = fk - k0
-    ref = np.zeros(300)
-    for di in (0, 1):
-        for dj in (0, 1):
-            p = oc.wrap(i0 + [di, dj], w)
-            wij = np.where(di, fr[:, 0], 1 - fr[:, 0]) * np.where(dj, fr[:, 1], 1 - fr[:, 1])
-            k1 = np.minimum(k0 + 1, K - 1)
-            ref += wij * ((1 - wk) * dense[p[:, 0], p[:, 1], k0] + wk * dense[p[:, 0], p[:, 1], k1])
+    ref = reference.lookup_point(at, LIGHT, LIGHT + t[:, None] * d)
     np.testing.assert_allclose(got, ref, atol=1e-6)
+
+
+def test_lookup_matches_the_reference_near_the_light_and_beyond_the_last_bin():
+    rng = np.random.default_rng(8)
+    w, K, tmax = 8, 6, 3.0
+    at = _atlas_from_function(_smooth, w, K, tmax)
+    d = rng.normal(size=(400, 3))
+    t = np.concatenate([rng.uniform(0.0, tmax / K, 200), rng.uniform(tmax - tmax / K, 1.5 * tmax, 200)])
+    pts = LIGHT + t[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True)
+    np.testing.assert_allclose(lookup_point(at, LIGHT, pts), reference.lookup_point(at, LIGHT, pts), atol=1e-6)
 
 
 def test_interpolation_is_continuous_across_fold_and_corners():

@@ -104,6 +104,7 @@ def test_relit_colour_is_scaled_colour_for_every_view():
         np.testing.assert_allclose(np.maximum(0, c_new), np.maximum(0, gamma * c * scale), rtol=2e-5, atol=2e-5)
     # all bands (view dependence) scaled, not only the DC term
     np.testing.assert_allclose(new[:, 1:], gamma * scale[:, None, :] * sh[:, 1:], rtol=1e-6)
+    np.testing.assert_allclose(new, reference.relight_sh_coefficients(sh, scale, gamma), rtol=1e-5, atol=1e-6)
 
 
 def test_relight_sh_wrapper_converts_probe_basis_explicitly():
