@@ -15,17 +15,8 @@ from numba_kernels.dgsm_exact import (
 )
 from numba_kernels.dgsm_model import ALPHA_MAX, TAU_STAR_MAX, pack_gaussians, pack_occluders
 from numba_kernels.reference.dgsm_exact import optical_depth_numpy
+from numba_kernels.reference.dgsm_exact import optical_depth_point_mpmath as _tau_mp
 from numba_kernels.reference.dgsm_model import segment_depth_mpmath, segment_depth_quad
-
-
-def _tau_mp(light, x, occ, dd, dps=50):
-    light, x = np.asarray(light, float), np.asarray(x, float)
-    t = float(np.linalg.norm(x - light))
-    if t == 0:
-        return 0.0
-    d = (x - light) / t
-    return sum(segment_depth_mpmath(light, d, 0.0, t, occ[i], dd, dps)
-               for i in range(len(occ)))
 
 
 @pytest.mark.parametrize("mapping", ["avg", "simple", "mass", "diag"])

@@ -3,7 +3,8 @@
 ``optical_depth_numpy``: float64 numpy, vectorised over occluders, a Python loop over points;
 the stable closed form written independently of the numba kernels (``erf`` / ``erfc`` from
 ``math``, element by element). The per-occluder segment integral itself has its
-arbitrary-precision references in :mod:`numba_kernels.reference.dgsm_model`.
+arbitrary-precision references in :mod:`numba_kernels.reference.dgsm_model`;
+``optical_depth_point_mpmath`` sums them over the occluders for one receiver of a point light.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from .dgsm_model import segment_depth_mpmath
 
 _erf = np.vectorize(math.erf, otypes=[float])
 _erfc = np.vectorize(math.erfc, otypes=[float])
@@ -56,3 +59,14 @@ def optical_depth_numpy(origin_or_none, points, occ, dir_dep: int, direction=Non
         beta = amp * np.sqrt(a) if dir_dep else amp
         out[j] = np.sum(beta * np.sqrt(np.pi / (2 * a)) * np.exp(-0.5 * m2) * np.maximum(diff, 0.0))
     return out
+
+
+def optical_depth_point_mpmath(light, x, occ, dir_dep: int, dps: int = 50) -> float:
+    """Optical depth from a point ``light`` (3,) to ``x`` (3,): eq. 3 in ``dps``-digit mpmath per
+    occluder row of ``occ``, summed (0 when ``x`` is the light)."""
+    light, x = np.asarray(light, float), np.asarray(x, float)
+    t = float(np.linalg.norm(x - light))
+    if t == 0:
+        return 0.0
+    d = (x - light) / t
+    return sum(segment_depth_mpmath(light, d, 0.0, t, occ[i], dir_dep, dps) for i in range(len(occ)))
