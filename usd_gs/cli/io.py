@@ -59,14 +59,38 @@ def _import_sequence(args, stage, path) -> str:
             f"animated: {', '.join(info.animated) or 'none'}")
 
 
+class _Background:
+    """Run ``fn(*args)`` in a daemon thread; :meth:`result` joins and returns or re-raises.
+
+    ``usdgs import`` decodes the capture (numpy and Pillow release the GIL) while pxr loads."""
+
+    def __init__(self, fn, *args):
+        import threading
+
+        self._out = None
+        self._exc = None
+
+        def run():
+            try:
+                self._out = fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller in result()
+                self._exc = exc
+
+        self._thread = threading.Thread(target=run, daemon=True, name="usdgs-read")
+        self._thread.start()
+
+    def result(self):
+        self._thread.join()
+        if self._exc is not None:
+            raise self._exc
+        return self._out
+
+
 def cmd_import(args) -> int:
     from usd_gs.io.sequence import is_pattern
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
-    from usd_gs.usd.stage import check_usd_output_path, prim_path
+    from usd_gs.usd.stage import check_usd_output_path
 
     check_usd_output_path(args.output)
-    path = prim_path(args.prim or default_prim_path(args.input))
     if os.path.abspath(args.output) == os.path.abspath(args.input):
         raise UserError(f"{args.output}: output would overwrite the input")
     if args.lod is not None and args.lod < 0:
@@ -74,6 +98,13 @@ def cmd_import(args) -> int:
     sequence = is_pattern(args.input)
     if args.frames and not sequence:
         raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
+    reader = None if sequence else _Background(read_gaussian_file, args.input, args.lod)
+
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
+    from usd_gs.usd.stage import prim_path
+
+    path = prim_path(args.prim or default_prim_path(args.input))
     root = path.GetPrefixes()[0]
     stage = new_stage(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
     if sequence:
@@ -84,7 +115,7 @@ def cmd_import(args) -> int:
         return 0
     # The readers reject NaN/Inf, zero quaternions and out-of-range values naming the
     # field and element, so no second validation pass is needed here.
-    gaussians = read_gaussian_file(args.input, args.lod)
+    gaussians = reader.result()
     bricks = ""
     if args.brick_size is not None:
         from usd_gs.usd.bricks import write_bricked

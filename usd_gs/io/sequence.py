@@ -90,13 +90,31 @@ def sequence_paths(pattern: str, frames: tuple[int, int] | None = None) -> list[
     return out
 
 
-def read_sequence(pattern: str, frames: tuple[int, int] | None = None,
-                  lod: int | None = None) -> Iterator[tuple[int, GaussianSet]]:
-    """Yield ``(frame, GaussianSet)`` for every frame of the sequence, one file at a time.
+def read_sequence(pattern: str, frames: tuple[int, int] | None = None, lod: int | None = None,
+                  prefetch: int = 2) -> Iterator[tuple[int, GaussianSet]]:
+    """Yield ``(frame, GaussianSet)`` for every frame of the sequence, in frame order.
 
-    Every path is checked before the first file is read (missing frames fail fast).
+    Every path is checked before the first file is read (missing frames fail fast). Up to
+    ``prefetch`` frames ahead are decoded in a background thread while the caller works on
+    the current one (0: read each frame when asked).
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     from usd_gs.io.formats import read_capture
 
-    for f, p in sequence_paths(pattern, frames):
-        yield f, read_capture(Path(p), lod=lod)
+    paths = sequence_paths(pattern, frames)
+    if prefetch <= 0:
+        for f, p in paths:
+            yield f, read_capture(Path(p), lod=lod)
+        return
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="usdgs-seq") as pool:
+        pending = [pool.submit(read_capture, Path(p), lod) for _, p in paths[:prefetch]]
+        try:
+            for i, (f, _) in enumerate(paths):
+                g = pending.pop(0).result()
+                if i + prefetch < len(paths):
+                    pending.append(pool.submit(read_capture, Path(paths[i + prefetch][1]), lod))
+                yield f, g
+        finally:
+            for fut in pending:
+                fut.cancel()
