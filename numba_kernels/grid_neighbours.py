@@ -85,12 +85,23 @@ def _hash(ix, iy, iz, mask):
     return ((ix * _P1) ^ (iy * _P2) ^ (iz * _P3)) & mask
 
 
+@njit(inline="always")
+def _cell_of(qx, qy, qz, origin, inv_cell):
+    """Integer cell (clamped) of the point (qx, qy, qz)."""
+    return (_cell_coord(qx, origin[0], inv_cell), _cell_coord(qy, origin[1], inv_cell),
+            _cell_coord(qz, origin[2], inv_cell))
+
+
+@njit(inline="always")
+def _in_range(ix, iy, iz):
+    """Whether the cell lies inside the clamped coordinate range [-2^20, 2^20 - 1]^3."""
+    return -_BIAS <= ix < _BIAS and -_BIAS <= iy < _BIAS and -_BIAS <= iz < _BIAS
+
+
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _cell_keys(points, origin, inv_cell, mask, cells, keys):
     for i in prange(points.shape[0]):
-        ix = _cell_coord(points[i, 0], origin[0], inv_cell)
-        iy = _cell_coord(points[i, 1], origin[1], inv_cell)
-        iz = _cell_coord(points[i, 2], origin[2], inv_cell)
+        ix, iy, iz = _cell_of(points[i, 0], points[i, 1], points[i, 2], origin, inv_cell)
         cells[i] = _pack(ix, iy, iz)
         keys[i] = _hash(ix, iy, iz, mask)
 
@@ -167,14 +178,12 @@ def neighbour_slots(points, origin, cell_size, mask, cell_keys, bucket_start, qx
     inv = 1.0 / cell_size
     r2 = radius * radius
     n = np.int64(1) if radius <= cell_size else np.int64(np.ceil(radius * inv))
-    cx = _cell_coord(qx, origin[0], inv)
-    cy = _cell_coord(qy, origin[1], inv)
-    cz = _cell_coord(qz, origin[2], inv)
+    cx, cy, cz = _cell_of(qx, qy, qz, origin, inv)
     cnt = 0
     for ix in range(cx - n, cx + n + 1):
         for iy in range(cy - n, cy + n + 1):
             for iz in range(cz - n, cz + n + 1):
-                if ix < -_BIAS or iy < -_BIAS or iz < -_BIAS or ix >= _BIAS or iy >= _BIAS or iz >= _BIAS:
+                if not _in_range(ix, iy, iz):
                     continue
                 b = _hash(ix, iy, iz, mask)
                 key = _pack(ix, iy, iz)
@@ -204,9 +213,7 @@ def _visit(points, origin, inv_cell, cell_size, mask, coords, start, order, pure
     exact; sums equal brute force up to summation order.
     """
     n = np.int64(np.ceil(np.sqrt(r2) * inv_cell))
-    cx = _cell_coord(qx, origin[0], inv_cell)
-    cy = _cell_coord(qy, origin[1], inv_cell)
-    cz = _cell_coord(qz, origin[2], inv_cell)
+    cx, cy, cz = _cell_of(qx, qy, qz, origin, inv_cell)
     count = np.int64(0)
     total = 0.0
     if not (np.isfinite(qx) and np.isfinite(qy) and np.isfinite(qz)):
@@ -214,7 +221,7 @@ def _visit(points, origin, inv_cell, cell_size, mask, coords, start, order, pure
     for ix in range(cx - n, cx + n + 1):
         for iy in range(cy - n, cy + n + 1):
             for iz in range(cz - n, cz + n + 1):
-                if ix < -_BIAS or iy < -_BIAS or iz < -_BIAS or ix >= _BIAS or iy >= _BIAS or iz >= _BIAS:
+                if not _in_range(ix, iy, iz):
                     continue
                 b = _hash(ix, iy, iz, mask)
                 if start[b + 1] == start[b]:

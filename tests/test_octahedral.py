@@ -67,14 +67,7 @@ def test_wrap_rule_in_pixels():
     for i, j in ((8, 2), (-1, 5), (3, 8), (6, -1)):
         u, v = (2 * i + 1) / w - 1, (2 * j + 1) / w - 1
         # map the out-of-square uv through the fold formula of the module doc
-        if u > 1:
-            u, v = 2 - u, -v
-        elif u < -1:
-            u, v = -2 - u, -v
-        elif v > 1:
-            u, v = -u, 2 - v
-        elif v < -1:
-            u, v = -u, -2 - v
+        u, v = reference.fold_uv(u, v)
         wi, wj = oc.wrap(np.array([[i, j]]), w)[0]
         np.testing.assert_allclose(oc.decode(np.array([[u, v]]))[0], dirs[wi, wj], atol=1e-14)
 

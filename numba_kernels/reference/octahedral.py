@@ -18,11 +18,9 @@ def encode(d) -> np.ndarray:
     return np.array([sx * (1 - abs(q[1])), sy * (1 - abs(q[0]))])
 
 
-def wrap_pixel(i: int, j: int, w: int) -> tuple[int, int]:
-    """The pixel of a ``w`` x ``w`` atlas that pixel (i, j) (less than ``w`` outside) continues
-    on the sphere: its centre's uv folded back into the square (``u > 1``: ``(2 - u, -v)``,
-    ``v > 1``: ``(-u, 2 - v)``, and the mirrored rules below -1), then the pixel holding it."""
-    u, v = (2 * i + 1) / w - 1, (2 * j + 1) / w - 1
+def fold_uv(u: float, v: float) -> tuple[float, float]:
+    """The point of [-1, 1]^2 that uv (less than 2 outside) continues on the sphere: ``u > 1``:
+    ``(2 - u, -v)``, ``v > 1``: ``(-u, 2 - v)``, and the mirrored rules below -1, until inside."""
     while abs(u) > 1 or abs(v) > 1:
         if u > 1:
             u, v = 2 - u, -v
@@ -32,4 +30,12 @@ def wrap_pixel(i: int, j: int, w: int) -> tuple[int, int]:
             u, v = -u, 2 - v
         else:
             u, v = -u, -2 - v
+    return u, v
+
+
+def wrap_pixel(i: int, j: int, w: int) -> tuple[int, int]:
+    """The pixel of a ``w`` x ``w`` atlas that pixel (i, j) (less than ``w`` outside) continues
+    on the sphere: its centre's uv folded back into the square (:func:`fold_uv`), then the pixel
+    holding it."""
+    u, v = fold_uv((2 * i + 1) / w - 1, (2 * j + 1) / w - 1)
     return math.floor((u + 1) * w / 2), math.floor((v + 1) * w / 2)
