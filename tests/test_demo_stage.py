@@ -16,7 +16,8 @@ from usd_gs.cli import main
 from usd_gs.errors import UserError
 from usd_gs.demo.room import PART_LAMP, make_room
 from usd_gs.usd.schema import read_role  # noqa: E402
-from usd_gs.usd.gaussian_prim import read_gaussian_prim  # noqa: E402
+from usd_gs.usd import skel as uskel  # noqa: E402
+from usd_gs.usd.gaussian_prim import describe_gaussian_prim, read_gaussian_prim  # noqa: E402
 from usd_gs.usd.validate import validate_stage  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -134,8 +135,13 @@ def test_lamp_ground_truth(stage):
 def test_cesium_time_samples_every_frame(stage):
     frames = [float(f) for f in range(1, QUICK_FRAMES + 1)]
     prim = stage.GetPrimAtPath("/World/CesiumMan")
-    for name in ("positions", "orientations", "scales", "extent"):
-        assert prim.GetAttribute(name).GetTimeSamples() == frames, name
+    # a skinned Gaussian prim (UsdSkel): the SkelAnimation and the skeleton's placement (root motion)
+    # carry a sample at every frame, the Gaussians are the bind pose
+    _, skel_query, _ = uskel._queries(prim, "/World/CesiumMan")
+    anim = skel_query.GetAnimQuery()
+    assert list(anim.GetJointTransformTimeSamples()) == frames
+    assert UsdGeom.Xformable(skel_query.GetSkeleton().GetPrim()).GetTimeSamples() == frames
+    assert describe_gaussian_prim(prim, 1).time_samples == (1.0, float(QUICK_FRAMES))
     guide = UsdGeom.Mesh(stage.GetPrimAtPath("/World/CesiumMan_guide"))
     assert guide.GetPointsAttr().GetTimeSamples() == frames
     assert guide.GetExtentAttr().GetTimeSamples() == frames
@@ -175,8 +181,11 @@ def test_point_triangle_distance_reference():
 
 def test_guide_mesh_carries_the_gaussians(stage):
     """Every Gaussian centre of frame f is a point of the guide mesh of frame f moved half its
-    sigma inwards (avatar_from_mesh.AVATAR_INSET; within 1 mm), and the mesh of another frame
-    is clearly elsewhere (the check can fail)."""
+    sigma inwards (avatar_from_mesh.AVATAR_INSET; within 1 mm for 90 % of them, 12 mm for all),
+    and the mesh of another frame is clearly elsewhere (the check can fail). The Gaussians are
+    skinned (UsdSkel, linear blend skinning of each centre with its triangle's blended weights)
+    while the guide holds the skinned vertices: the two differ by a second-order term near the
+    joints (CesiumMan, 5000 Gaussians: median 0.3 mm, 99th percentile 4.4 mm, max 10.5 mm)."""
     prim = stage.GetPrimAtPath("/World/CesiumMan")
     guide = UsdGeom.Mesh(stage.GetPrimAtPath("/World/CesiumMan_guide"))
     faces = np.array(guide.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
@@ -189,7 +198,8 @@ def test_guide_mesh_carries_the_gaussians(stage):
         d = _point_triangle_distance(sub, verts[faces])
         inset = 0.5 * g.scales[pick, 0]
         # within the inset of the skin everywhere; exactly the inset where no other part is nearer
-        assert np.all(d <= inset + 1e-3) and np.median(np.abs(d - inset)) < 1e-3
+        assert np.mean(d <= inset + 1e-3) >= 0.9 and np.all(d <= inset + 0.012)
+        assert np.median(np.abs(d - inset)) < 1e-3
     other = np.array(guide.GetPointsAttr().Get(QUICK_FRAMES), np.float64)
     pts = read_gaussian_prim(prim, 1).positions.astype(np.float64)[:60]
     assert np.median(_point_triangle_distance(pts, other[faces])) > 0.05
@@ -316,7 +326,7 @@ def test_options_change_the_output(tmp_path):
     st = Usd.Stage.Open(str(out))
     assert st.GetEndTimeCode() == 3.0
     prim = st.GetPrimAtPath("/World/CesiumMan")
-    assert prim.GetAttribute("positions").GetTimeSamples() == [1.0, 2.0, 3.0]
+    assert describe_gaussian_prim(prim, 1).time_samples == (1.0, 3.0)  # skinned: the animation's samples
     assert read_gaussian_prim(prim, 2).count == 700
     assert sum(read_gaussian_prim(b).count for b in st.GetPrimAtPath("/World/Room").GetChildren()) == \
         make_room(density=20.0).gaussians.count

@@ -767,3 +767,115 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
         shares.append(stretched_share(rig_gs, read_gaussian_prim(stage.GetPrimAtPath(f"{prim_path}/Gaussians"), f)))
     result.stretched_share = float(np.mean(shares)) if shares else None
     return result
+
+
+# ----------------------------------------------------------------------------- glTF avatars (demo)
+def blend_vertex_weights(joint_indices: np.ndarray, weights: np.ndarray, faces: np.ndarray, face_index: np.ndarray,
+                         bary: np.ndarray, num_joints: int, influences: int | None = None):
+    """Barycentric blend of a triangle's vertex weights at surface samples: (indices (n, K) int32,
+    weights (n, K) float32, rows summing to 1). Duplicate joints are merged; ``influences`` None
+    keeps every joint that has weight (K = the largest count, zero-padded), else the largest K."""
+    corners = np.asarray(faces)[np.asarray(face_index)]
+    kv = joint_indices.shape[1]
+    n = len(face_index)
+    idx = joint_indices[corners].reshape(n, 3 * kv)
+    w = (weights[corners].astype(np.float64) * np.asarray(bary, np.float64)[:, :, None]).reshape(n, 3 * kv)
+    dense = np.zeros((n, num_joints))
+    np.add.at(dense, (np.repeat(np.arange(n), 3 * kv), idx.reshape(-1)), w.reshape(-1))
+    k = int(influences) if influences else max(1, int((dense > 0).sum(axis=1).max()))
+    if dense.shape[1] < k:
+        dense = np.concatenate([dense, np.zeros((n, k - dense.shape[1]))], axis=1)
+    top = np.argsort(-dense, axis=1, kind="stable")[:, :k]
+    wk = np.take_along_axis(dense, top, axis=1)
+    wk /= np.maximum(wk.sum(axis=1, keepdims=True), 1e-300)
+    top = np.where((wk > 0) & (top < num_joints), top, top[:, :1])
+    return top.astype(np.int32), wk.astype(np.float32)
+
+
+def gltf_skeleton(mesh):
+    """(order (J,) skin joint indices parents first, parents (J,), UsdSkel joint paths (J,)) of a
+    ``usd_gs.io.gltf.SkinnedMesh``: the parent of a joint is its nearest ancestor node that is a joint."""
+    nodes = mesh.joint_nodes
+    node_to_joint = {int(n): j for j, n in enumerate(nodes)}
+    jparent = []
+    for n in nodes:
+        p = int(mesh.node_parents[n])
+        while p >= 0 and p not in node_to_joint:
+            p = int(mesh.node_parents[p])
+        jparent.append(node_to_joint.get(p, -1))
+    order: list[int] = []
+    placed: set[int] = set()
+    while len(order) < len(nodes):
+        for j in range(len(nodes)):
+            if j not in placed and (jparent[j] < 0 or jparent[j] in placed):
+                order.append(j)
+                placed.add(j)
+    new_index = np.empty(len(nodes), np.int64)
+    new_index[order] = np.arange(len(order))
+    parents = np.array([new_index[jparent[j]] if jparent[j] >= 0 else -1 for j in order], np.int64)
+    src = RigSource("", np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 1), np.int32),
+                    np.zeros((0, 1), np.float32), [mesh.node_names[nodes[j]] or f"joint{j}" for j in order], parents,
+                    np.zeros((len(order), 4, 4)), np.zeros((len(order), 4, 4)), np.zeros((len(order), 3)),
+                    np.zeros((len(order), 3)))
+    return np.array(order, np.int64), new_index, parents, src.joint_paths
+
+
+def author_gltf_skinned_avatar(stage, mesh, prim_path: str, skel_path: str, times_s, time_codes, n_gaussians: int,
+                               seed: int = 0, loop: bool = True, skel_xforms: dict | None = None):
+    """Author a skinned Gaussian avatar of a glTF skinned mesh (the exact glTF skinning, UsdSkel form).
+
+    The Gaussians are :func:`usd_gs.demo.mesh_avatar.posed_avatar_frames`'s surface samples (same
+    faces, barycentrics, colours, sigma and inset for the same ``seed``) built on the mesh-space
+    rest vertices (glTF ``POSITION``); each takes the barycentric blend of its triangle's vertex
+    weights (every influence kept). ``Skeleton`` at ``skel_path``: joints parents first,
+    ``bindTransforms`` = inverse bind matrices inverted (mesh space), ``restTransforms`` the rest
+    pose; its ``SkelAnimation`` (``skel_path + "/Animation"``) samples the glTF clip at ``times_s``
+    (seconds; ``loop`` repeats it) as time codes ``time_codes``; skeleton space = glTF world (Y-up,
+    metres), so the skinning matrix of joint j at t is ``G_j(t) @ IBM_j``, as glTF. ``skel_xforms``
+    ({time code: 4x4 USD row-vector matrix}) places the skeleton (root motion) by an ``xformOp:transform``.
+    The Gaussian prim and the skeleton must sit under a SkelRoot the caller provides. Returns the prim.
+    """
+    from pxr import Gf, Sdf, UsdGeom
+
+    from usd_gs.demo.mesh_avatar import (
+        AVATAR_INSET,
+        AVATAR_SIGMA_FACTOR,
+        face_areas,
+        gaussians_on_mesh,
+        sample_colors,
+        sample_surface,
+    )
+    from usd_gs.io.gltf import loop_period, node_global_matrices, pose
+    from usd_gs.usd import skel as uskel
+    from usd_gs.usd.gaussian_prim import write_gaussian_prim
+
+    rest_world = pose(mesh, None)[0]
+    face, bary = sample_surface(rest_world, mesh.faces, n_gaussians, seed)
+    colors = sample_colors(mesh, face, bary)
+    spacing = np.sqrt(face_areas(rest_world, mesh.faces).sum() / max(n_gaussians, 1))
+    rest = gaussians_on_mesh(mesh.rest_vertices, mesh.faces, mesh.normals, face, bary, colors, 0.1, 0.95,
+                             spacing=spacing, sigma_factor=AVATAR_SIGMA_FACTOR, sh_degree=0, inset=AVATAR_INSET,
+                             label=prim_path)
+    order, new_index, parents, joints = gltf_skeleton(mesh)
+    idx, wts = blend_vertex_weights(new_index[mesh.joints], mesh.weights, mesh.faces, face, bary, len(order))
+    if loop and mesh.channels and loop_period(mesh) <= 0:
+        loop = False
+    nodes = mesh.joint_nodes[order]
+    bind = np.linalg.inv(mesh.inverse_bind_matrices[order])
+    rest_local = _locals(node_global_matrices(mesh, None)[nodes], parents)
+    sk = uskel.author_skeleton(stage, skel_path, joints, bind, rest_local)
+    frames = np.stack([_locals(node_global_matrices(mesh, float(t), loop)[nodes], parents) for t in times_s])
+    lin = frames[:, :, :3, :3]
+    sc = np.linalg.norm(lin, axis=2)
+    rots = matrix_to_quaternion((lin / np.where(sc > 0, sc, 1.0)[:, :, None, :]).reshape(-1, 3, 3))
+    uskel.author_animation(stage, skel_path + "/Animation", sk, joints, time_codes, frames[:, :, :3, 3],
+                           rots.reshape(len(frames), len(order), 4), sc)
+    if skel_xforms:
+        op = UsdGeom.Xformable(sk).AddTransformOp()
+        layer = stage.GetEditTarget().GetLayer()
+        with Sdf.ChangeBlock():
+            for t, m in skel_xforms.items():
+                layer.SetTimeSample(op.GetAttr().GetPath(), float(t), Gf.Matrix4d(np.asarray(m).tolist()))
+    prim = write_gaussian_prim(stage, prim_path, rest, keep_raw=False)
+    uskel.bind_prim(prim, sk, idx, wts)
+    return prim

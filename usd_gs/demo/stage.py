@@ -5,7 +5,7 @@ its animated data is tens of MB. Layout on disk, for ``-o stages/demo.usda``:
 
 - ``stages/demo.usda``: small text root layer. Stage metadata (Y-up, ``metersPerUnit`` 1,
   ``timeCodesPerSecond``/``framesPerSecond`` 24, time codes 1..F, ``defaultPrim`` World),
-  ``/World`` (Xform) carrying the lamp ground truth in ``customData`` (below), and
+  ``/World`` (a ``UsdSkel.Root``, an Xformable) carrying the lamp ground truth in ``customData`` (below), and
   ``/World/Camera``. Its ``subLayers`` are the binary data layers (relative paths
   ``./demo_data/<name>.usdc``, strongest first in the order cesium_man, biker, guitar,
   room; they define disjoint prims, so the order does not matter).
@@ -16,18 +16,24 @@ its animated data is tens of MB. Layout on disk, for ``-o stages/demo.usda``:
   CesiumMan's shadows fall (:data:`SHADOW_DETAIL`: a floor patch and the foot of the x = -4
   wall) the surfaces carry ``room_detail_density`` Gaussians per m^2 (small, dense splats,
   as a capture has on surfaces), elsewhere ``room_density``.
-- ``stages/demo_data/cesium_man.usdc``: ``/World/CesiumMan``, role avatar, SH degree 0:
-  surface Gaussians of ``humans/CesiumMan.glb`` skinned by its own walk clip (linear
-  blend skinning, :func:`usd_gs.demo.mesh_avatar.posed_avatar_frames`), time-sampled at
-  every frame with the walk's root motion (a circle, :data:`CESIUM_PATH`) baked into the
-  world-space values (the prim's transform is identity). Gaussian k is the same skin
-  point in every frame. ``/World/CesiumMan_guide``: the posed glTF mesh as a
+- ``stages/demo_data/cesium_man.usdc``: ``/World/CesiumMan``, role avatar, SH degree 0: a
+  skinned Gaussian prim (UsdSkel, ``usd_gs.usd.skel``; ``/World`` is a ``SkelRoot``) holding the
+  bind-pose surface Gaussians of ``humans/CesiumMan.glb`` (the samples, colours, sigmas and inset
+  of :func:`usd_gs.demo.mesh_avatar.posed_avatar_frames`, each with its triangle's blended
+  vertex weights), bound to ``/World/CesiumMan_Skeleton`` (the glTF skin: joints parents first,
+  bind = inverse bind matrices inverted) whose ``SkelAnimation`` ``Animation`` samples the walk
+  clip at every frame (:func:`usd_gs.demo.rig.author_gltf_skinned_avatar`); the walk's root motion
+  (a circle, :data:`CESIUM_PATH`) is the skeleton's time-sampled ``xformOp:transform``. Every
+  reader skins it per frame (linear blend skinning); Gaussian k is the same skin point in every
+  frame. ``/World/CesiumMan_guide``: the posed glTF mesh as a
   ``UsdGeom.Mesh`` (purpose guide, triangles, ``subdivisionScheme`` none), points and
   extent time-sampled at every frame in the same world placement, topology static; its
   relationship ``usdgs:demo:guideFor`` targets ``/World/CesiumMan``. Every Gaussian centre
-  of frame f is the same barycentric point of the mesh of frame f, moved half its in-plane
+  of frame f is near the same barycentric point of the mesh of frame f, moved half its in-plane
   sigma inwards along the normal (``avatar_from_mesh.AVATAR_INSET``: the Gaussians'
-  silhouette then matches the mesh's).
+  silhouette then matches the mesh's); skinning a centre with blended weights differs from
+  blending the skinned corners by a second-order term (median 0.3 mm, at most about 1 cm
+  near the joints).
 - ``stages/demo_data/biker.usdc``: ``/World/Biker``, role avatar: the real capture
   ``splats/biker.ply`` with its canonical placement baked into the points (turned to face
   +Z, feet at y = 0, centred on the Y axis, uniformly scaled to :data:`BIKER_HEIGHT`), moved
@@ -342,31 +348,34 @@ def _write_room(opts: DemoOptions, path: Path):
 
 
 def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path) -> int:
-    from pxr import Sdf, UsdGeom, Vt
+    from pxr import Sdf, UsdGeom, UsdSkel, Vt
 
-    from usd_gs.demo.mesh_avatar import posed_avatar_frames, posed_meshes
+    from usd_gs.demo.mesh_avatar import posed_meshes
+    from usd_gs.demo.rig import author_gltf_skinned_avatar
     from usd_gs.io.gltf import load_skinned_mesh
-    from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.gaussian_prim import save_stage_atomic
     from usd_gs.usd.schema import apply_role
 
     mesh = load_skinned_mesh(glb)
     times = frame_times(opts.frames)
-    local = posed_avatar_frames(mesh, times, n_gaussians=opts.avatar_gaussians, seed=opts.seed, loop=True,
-                                label="/World/CesiumMan")
     meshes = posed_meshes(mesh, times, loop=True)
     where, heading = CESIUM_PATH.at(times)
     stage = _new_layer_stage(opts.frames)
+    UsdSkel.Root.Define(stage, "/World")  # the root layer's /World is a SkelRoot too (it is the stronger opinion)
+    placement = {float(f): usd_matrix(rotation_y(float(h)), p)
+                 for f, (p, h) in enumerate(zip(where, heading, strict=True), start=1)}
+    prim = author_gltf_skinned_avatar(stage, mesh, "/World/CesiumMan", "/World/CesiumMan_Skeleton", times,
+                                      np.arange(1, opts.frames + 1, dtype=np.float64), opts.avatar_gaussians,
+                                      seed=opts.seed, loop=True, skel_xforms=placement)
+    apply_role(prim, "avatar")
 
     points = {}
     extents = {}
-    for f, (g, (verts, _), p, h) in enumerate(zip(local, meshes, where, heading, strict=True), start=1):
+    for f, ((verts, _), p, h) in enumerate(zip(meshes, where, heading, strict=True), start=1):
         rot = rotation_y(float(h))
-        world = g.transformed(usd_matrix(rot, p), label="/World/CesiumMan")
-        prim = write_gaussian_prim(stage, "/World/CesiumMan", world, time=f, keep_raw=False)
         v = (verts @ rot.T + p).astype(np.float32)
         points[float(f)] = Vt.Vec3fArray.FromNumpy(v)
         extents[float(f)] = Vt.Vec3fArray.FromNumpy(np.stack([v.min(axis=0), v.max(axis=0)]))
-    apply_role(prim, "avatar")
 
     guide = UsdGeom.Mesh.Define(stage, "/World/CesiumMan_guide")
     guide.CreatePurposeAttr(UsdGeom.Tokens.guide)
@@ -384,7 +393,7 @@ def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path) -> int:
         _set_samples(layer, pts_attr, points)
         _set_samples(layer, ext_attr, extents)
     save_stage_atomic(stage, path)
-    return local[0].count
+    return opts.avatar_gaussians
 
 
 def _write_capture(opts: DemoOptions, ply: Path, path: Path, prim_path: str, role: str, rot: np.ndarray,
@@ -421,12 +430,13 @@ def _write_capture(opts: DemoOptions, ply: Path, path: Path, prim_path: str, rol
 
 
 def _write_root(opts: DemoOptions, path: Path, data_folder: str, room) -> None:
-    from pxr import Gf, Sdf, UsdGeom, Vt
+    from pxr import Gf, Sdf, UsdGeom, UsdSkel, Vt
 
     from usd_gs.usd.gaussian_prim import save_stage_atomic
 
     stage = _new_layer_stage(opts.frames)
-    world = UsdGeom.Xform.Define(stage, "/World").GetPrim()
+    # SkelRoot: CesiumMan is a skinned Gaussian prim (UsdSkel skins only below a SkelRoot)
+    world = UsdSkel.Root.Define(stage, "/World").GetPrim()
     lamps = room.lamps
     world.SetCustomDataByKey("usdgs:demo:lampPositions", Vt.Vec3dArray([Gf.Vec3d(*map(float, lp.position))
                                                                         for lp in lamps]))
