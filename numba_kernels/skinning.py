@@ -15,11 +15,11 @@ Contract (every array C-contiguous; ``N`` Gaussians, ``K`` influences each, ``J`
 
 Per Gaussian: ``A = sum_k w_k skin[j_k]`` (the blended affine). Position ``A[:3, :3] @ p + A[:3, 3]``
 (float64 math). Rotation ``R`` = the orthogonal polar factor of ``A[:3, :3]`` (Newton iteration
-with determinant scaling, converged to 1e-12 relative), uniform scale ``s = det(A33)^(1/3)``.
+with determinant scaling, converged to 1e-12), uniform scale ``s = det(A33)^(1/3)``.
 When ``det(A33) <= 1e-12 * |A33|_F^3`` (degenerate or reflected blend) ``R`` and ``s`` come from
 the matrix of the Gaussian's largest-weight influence instead (identity / 1 if that one is
 degenerate too). Orientation ``quat(R) * q_rest`` (unit, w >= 0), scales ``s * rest_scales``,
-SH band l: ``c' = pinv_l @ (Y_l(R^T dirs) @ c)``, exact per band (the new expansion at world
+SH band l: ``c' = D_l @ c`` with ``D_l = pinv_l @ Y_l(R^T dirs)``, exact per band (the new expansion at world
 direction w equals the old one at ``R^T w``, as ``usd_gs.sh3dgs.rotate_coefficients``).
 Band 0 (DC) is copied. Outputs are float32, finite for finite inputs.
 
@@ -66,77 +66,63 @@ def _basis(x, y, z, out):
 
 
 @njit(cache=True, inline="always")
-def _det3(a):
-    return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
-
-
-@njit(cache=True)
-def _polar(a, r):
-    """Orthogonal polar factor of the 3x3 ``a`` into ``r``; returns det(a), or 0.0 (r untouched)
-    when ``a`` is degenerate or reflected (det <= 1e-12 |a|_F^3)."""
-    fro = 0.0
-    for i in range(3):
-        for j in range(3):
-            fro += a[i, j] * a[i, j]
-    fro = math.sqrt(fro)
-    det = _det3(a)
-    if not (fro > 0.0) or not (det > 1e-12 * fro * fro * fro):
-        return 0.0
-    x = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            x[i, j] = a[i, j]
+def _polar9(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    """Orthogonal polar factor of a 3x3 (row-major scalars) by Newton's iteration with determinant
+    scaling, ``X <- (g X + X^-T / g) / 2``, ``g = |det X|^(-1/3)``, until the update is below 1e-12
+    (relative; at most 40 steps). Returns (det(A), r00..r22); det(A) = 0.0 flags a degenerate or
+    reflected input (det <= 1e-12 |A|_F^3), the rotation is then the identity."""
+    fro2 = (a00 * a00 + a01 * a01 + a02 * a02 + a10 * a10 + a11 * a11 + a12 * a12
+            + a20 * a20 + a21 * a21 + a22 * a22)
+    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+    fro = math.sqrt(fro2)
+    if not (fro > 0.0) or not (det > 1e-12 * fro2 * fro):
+        return 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    x00, x01, x02, x10, x11, x12, x20, x21, x22 = a00, a01, a02, a10, a11, a12, a20, a21, a22
+    d = det
     for _ in range(40):
-        d = _det3(x)
-        g = abs(d) ** (-1.0 / 3.0)
-        # cofactor(x) = det(x) * inv(x)^T
-        c00 = x[1, 1] * x[2, 2] - x[1, 2] * x[2, 1]
-        c01 = x[1, 2] * x[2, 0] - x[1, 0] * x[2, 2]
-        c02 = x[1, 0] * x[2, 1] - x[1, 1] * x[2, 0]
-        c10 = x[0, 2] * x[2, 1] - x[0, 1] * x[2, 2]
-        c11 = x[0, 0] * x[2, 2] - x[0, 2] * x[2, 0]
-        c12 = x[0, 1] * x[2, 0] - x[0, 0] * x[2, 1]
-        c20 = x[0, 1] * x[1, 2] - x[0, 2] * x[1, 1]
-        c21 = x[0, 2] * x[1, 0] - x[0, 0] * x[1, 2]
-        c22 = x[0, 0] * x[1, 1] - x[0, 1] * x[1, 0]
-        f = 1.0 / (g * d)
-        ch = 0.0
-        for i in range(3):
-            for j in range(3):
-                if i == 0:
-                    c = c00 if j == 0 else (c01 if j == 1 else c02)
-                elif i == 1:
-                    c = c10 if j == 0 else (c11 if j == 1 else c12)
-                else:
-                    c = c20 if j == 0 else (c21 if j == 1 else c22)
-                nv = 0.5 * (g * x[i, j] + f * c)
-                ch += (nv - x[i, j]) * (nv - x[i, j])
-                r[i, j] = nv
-        for i in range(3):
-            for j in range(3):
-                x[i, j] = r[i, j]
+        # cofactor matrix = det * inverse transpose
+        c00 = x11 * x22 - x12 * x21
+        c01 = x12 * x20 - x10 * x22
+        c02 = x10 * x21 - x11 * x20
+        c10 = x02 * x21 - x01 * x22
+        c11 = x00 * x22 - x02 * x20
+        c12 = x01 * x20 - x00 * x21
+        c20 = x01 * x12 - x02 * x11
+        c21 = x02 * x10 - x00 * x12
+        c22 = x00 * x11 - x01 * x10
+        g = math.exp(-math.log(d) / 3.0)
+        h = 0.5 * g
+        f = 0.5 / (g * d)
+        n00, n01, n02 = h * x00 + f * c00, h * x01 + f * c01, h * x02 + f * c02
+        n10, n11, n12 = h * x10 + f * c10, h * x11 + f * c11, h * x12 + f * c12
+        n20, n21, n22 = h * x20 + f * c20, h * x21 + f * c21, h * x22 + f * c22
+        ch = ((n00 - x00) ** 2 + (n01 - x01) ** 2 + (n02 - x02) ** 2 + (n10 - x10) ** 2 + (n11 - x11) ** 2
+              + (n12 - x12) ** 2 + (n20 - x20) ** 2 + (n21 - x21) ** 2 + (n22 - x22) ** 2)
+        x00, x01, x02, x10, x11, x12, x20, x21, x22 = n00, n01, n02, n10, n11, n12, n20, n21, n22
         if ch < 1e-24:
             break
-    return det
+        d = x00 * (x11 * x22 - x12 * x21) - x01 * (x10 * x22 - x12 * x20) + x02 * (x10 * x21 - x11 * x20)
+        if not (d > 0.0):
+            break
+    return det, x00, x01, x02, x10, x11, x12, x20, x21, x22
 
 
 @njit(cache=True, inline="always")
-def _mat_to_quat(r):
+def _mat_to_quat9(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """Unit (w, x, y, z) of a rotation matrix (Shepperd's method), w >= 0."""
-    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    tr = r00 + r11 + r22
     if tr > 0.0:
         s = math.sqrt(tr + 1.0) * 2.0
-        w, x, y, z = 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2.0
-        w, x, y, z = (r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s
-    elif r[1, 1] > r[2, 2]:
-        s = math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2.0
-        w, x, y, z = (r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
+    elif r00 > r11 and r00 > r22:
+        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
+    elif r11 > r22:
+        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
     else:
-        s = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2.0
-        w, x, y, z = (r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s
+        s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if w < 0.0:
         n = -n
@@ -149,16 +135,11 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
     n_inf = joint_idx.shape[1]
     n_coef = sh.shape[1]
     m = dirs.shape[0]
-    a = np.empty((3, 4))
-    a33 = np.empty((3, 3))
-    r = np.empty((3, 3))
     ybuf = np.empty(16)
-    bmat = np.empty((m, 16))
-    tmp = np.empty((m, 3))
+    ymat = np.empty((m, 16))
+    dmat = np.empty((7, 7))
     for i in range(lo, hi):
-        for u in range(3):
-            for v in range(4):
-                a[u, v] = 0.0
+        a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = a20 = a21 = a22 = a23 = 0.0
         best_w = -1.0
         best_j = 0
         for k in range(n_inf):
@@ -168,31 +149,37 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
                 best_w = w
                 best_j = j
             if w != 0.0:
-                for u in range(3):
-                    for v in range(4):
-                        a[u, v] += w * skin[j, u, v]
+                a00 += w * skin[j, 0, 0]
+                a01 += w * skin[j, 0, 1]
+                a02 += w * skin[j, 0, 2]
+                a03 += w * skin[j, 0, 3]
+                a10 += w * skin[j, 1, 0]
+                a11 += w * skin[j, 1, 1]
+                a12 += w * skin[j, 1, 2]
+                a13 += w * skin[j, 1, 3]
+                a20 += w * skin[j, 2, 0]
+                a21 += w * skin[j, 2, 1]
+                a22 += w * skin[j, 2, 2]
+                a23 += w * skin[j, 2, 3]
         px, py, pz = float(rest_pos[i, 0]), float(rest_pos[i, 1]), float(rest_pos[i, 2])
-        for u in range(3):
-            out_pos[i, u] = a[u, 0] * px + a[u, 1] * py + a[u, 2] * pz + a[u, 3]
-            for v in range(3):
-                a33[u, v] = a[u, v]
-        det = _polar(a33, r)
+        out_pos[i, 0] = a00 * px + a01 * py + a02 * pz + a03
+        out_pos[i, 1] = a10 * px + a11 * py + a12 * pz + a13
+        out_pos[i, 2] = a20 * px + a21 * py + a22 * pz + a23
+        det, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _polar9(a00, a01, a02, a10, a11, a12, a20, a21, a22)
         if det <= 0.0:
-            for u in range(3):
-                for v in range(3):
-                    a33[u, v] = skin[best_j, u, v]
-            det = _polar(a33, r)
+            s0 = skin[best_j]
+            det, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _polar9(
+                s0[0, 0], s0[0, 1], s0[0, 2], s0[1, 0], s0[1, 1], s0[1, 2], s0[2, 0], s0[2, 1], s0[2, 2])
             if det <= 0.0:
                 det = 1.0
-                for u in range(3):
-                    for v in range(3):
-                        r[u, v] = 1.0 if u == v else 0.0
-        s = det ** (1.0 / 3.0)
-        for u in range(3):
-            out_scales[i, u] = s * rest_scales[i, u]
-            for v in range(3):
-                out_rot[i, u, v] = r[u, v]
-        rw, rx, ry, rz = _mat_to_quat(r)
+        s = math.exp(math.log(det) / 3.0)
+        out_scales[i, 0] = s * rest_scales[i, 0]
+        out_scales[i, 1] = s * rest_scales[i, 1]
+        out_scales[i, 2] = s * rest_scales[i, 2]
+        out_rot[i, 0, 0], out_rot[i, 0, 1], out_rot[i, 0, 2] = r00, r01, r02
+        out_rot[i, 1, 0], out_rot[i, 1, 1], out_rot[i, 1, 2] = r10, r11, r12
+        out_rot[i, 2, 0], out_rot[i, 2, 1], out_rot[i, 2, 2] = r20, r21, r22
+        rw, rx, ry, rz = _mat_to_quat9(r00, r01, r02, r10, r11, r12, r20, r21, r22)
         qw, qx, qy, qz = float(rest_quat[i, 0]), float(rest_quat[i, 1]), float(rest_quat[i, 2]), float(rest_quat[i, 3])
         qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         if qn > 0.0 and math.isfinite(qn):
@@ -215,28 +202,34 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
         if n_coef > 1:
             for d in range(m):
                 # R^T w
-                dx = r[0, 0] * dirs[d, 0] + r[1, 0] * dirs[d, 1] + r[2, 0] * dirs[d, 2]
-                dy = r[0, 1] * dirs[d, 0] + r[1, 1] * dirs[d, 1] + r[2, 1] * dirs[d, 2]
-                dz = r[0, 2] * dirs[d, 0] + r[1, 2] * dirs[d, 1] + r[2, 2] * dirs[d, 2]
-                _basis(dx, dy, dz, ybuf)
-                for e in range(16):
-                    bmat[d, e] = ybuf[e]
+                wx, wy, wz = dirs[d, 0], dirs[d, 1], dirs[d, 2]
+                _basis(r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz,
+                       r02 * wx + r12 * wy + r22 * wz, ybuf)
+                for e in range(1, n_coef):
+                    ymat[d, e] = ybuf[e]
             band = 1
             while (band + 1) * (band + 1) <= n_coef:
                 b0 = band * band
-                b1 = (band + 1) * (band + 1)
-                for d in range(m):
-                    for c in range(3):
-                        acc = 0.0
-                        for e in range(b0, b1):
-                            acc += bmat[d, e] * sh[i, e, c]
-                        tmp[d, c] = acc
-                for e in range(b0, b1):
-                    for c in range(3):
+                nb = 2 * band + 1
+                # band matrix D = pinv_l @ Y_l(R^T dirs): new = D @ old
+                for u in range(nb):
+                    for v in range(nb):
                         acc = 0.0
                         for d in range(m):
-                            acc += pinv[e, d] * tmp[d, c]
-                        out_sh[i, e, c] = acc
+                            acc += pinv[b0 + u, d] * ymat[d, b0 + v]
+                        dmat[u, v] = acc
+                for u in range(nb):
+                    c0 = 0.0
+                    c1 = 0.0
+                    c2 = 0.0
+                    for v in range(nb):
+                        dv = dmat[u, v]
+                        c0 += dv * sh[i, b0 + v, 0]
+                        c1 += dv * sh[i, b0 + v, 1]
+                        c2 += dv * sh[i, b0 + v, 2]
+                    out_sh[i, b0 + u, 0] = c0
+                    out_sh[i, b0 + u, 1] = c1
+                    out_sh[i, b0 + u, 2] = c2
                 band += 1
 
 

@@ -252,13 +252,13 @@ def animation_range(prim: Usd.Prim) -> tuple[float, float] | None:
 
 def sh_rotation_tables(degree: int):
     """(dirs (M, 3), pinv (C, M)) float64 for the kernel's exact per-band SH rotation:
-    M = 32 Fibonacci-sphere directions, rows of band l of ``pinv`` = pinv of the band-l
-    3DGS basis at them (band 0 rows unused)."""
+    M = 12 Fibonacci-sphere directions (band condition numbers <= 3.3), rows of band l of
+    ``pinv`` = pinv of the band-l 3DGS basis at them (band 0 rows unused)."""
     if degree in _SH_TABLES:
         return _SH_TABLES[degree]
     from usd_gs import sh3dgs
 
-    m = 32
+    m = 12
     i = np.arange(m) + 0.5
     z = 1.0 - 2.0 * i / m
     phi = np.pi * (1.0 + 5.0 ** 0.5) * i
