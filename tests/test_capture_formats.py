@@ -67,16 +67,36 @@ def test_sog_monkey_sequence_matches_splat_transform(tmp_path):
 
 
 @needs_data
-@pytest.mark.parametrize("lod_set,levels", [(PLAYBOT, (3, 5, 6)), (FLOWERS, (1, 3))])
+@pytest.mark.parametrize("lod_set,levels", [(PLAYBOT, (5, 6)), (FLOWERS, (3,))])
 def test_sog_lod_levels_match_splat_transform(tmp_path, lod_set, levels):
-    """Levels of both LOD sets (the large levels 0..2 are left out to keep the test short; the
-    benchmark checks flowers level 0 the same way); flowers level 1 has two chunks, checking
-    their concatenation."""
+    """Small levels of both LOD sets (the large ones are left to the benchmark, which checks
+    flowers level 0 the same way)."""
     for lod in levels:
         ref = read_ply(st_to_ply([lod_set], tmp_path / f"lod{lod}.ply", lod=lod))
         ours = read_sog(lod_set, lod=lod)
         assert_same_decode(ours, ref, f"{lod_set} LOD {lod}")
         assert ours.sh_degree == 2
+
+
+@needs_data
+def test_sog_lod_level_of_several_chunks(tmp_path):
+    """A LOD set whose level 0 is two chunk files (playbot's 6_0 and 5_0 folders, referenced
+    in that file order by two tree nodes): the level is the chunks in file-index order."""
+    import json
+    import shutil
+
+    for name in ("5_0", "6_0"):
+        shutil.copytree(PLAYBOT.parent / name, tmp_path / name)
+    counts = {n: json.loads((tmp_path / n / "meta.json").read_text())["count"] for n in ("5_0", "6_0")}
+    meta = {"lodLevels": 1, "filenames": ["6_0/meta.json", "5_0/meta.json"],
+            "tree": {"children": [{"lods": {"0": {"file": 1, "offset": 0, "count": counts["5_0"]}}},
+                                  {"lods": {"0": {"file": 0, "offset": 0, "count": counts["6_0"]}}}]}}
+    (tmp_path / "lod-meta.json").write_text(json.dumps(meta))
+    ref = read_ply(st_to_ply([tmp_path / "lod-meta.json"], tmp_path / "two.ply", lod=0))
+    ours = read_sog(tmp_path / "lod-meta.json")
+    assert ours.count == counts["5_0"] + counts["6_0"]
+    assert_same_decode(ours, ref, "two-chunk level")
+    np.testing.assert_array_equal(ours.positions[:counts["6_0"]], read_sog(tmp_path / "6_0").positions)
 
 
 @needs_data

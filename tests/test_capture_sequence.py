@@ -124,3 +124,44 @@ def test_monkey_sequence(tmp_path, capsys):
     np.testing.assert_array_equal(back.positions, ref.positions)
     np.testing.assert_array_equal(back.sh, ref.sh)
     np.testing.assert_array_equal(back.opacities, ref.opacities)
+
+
+def test_main_job_on_sequence_with_changing_counts(tmp_path, capsys):
+    """`usdgs process` on an imported sequence avatar whose count changes per frame (shared/
+    DESIGN.md section 2): it is relit and receives shadows at every frame, and the output
+    SH has that frame's count."""
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+
+    rng = np.random.default_rng(0)
+    counts = {1: 40, 2: 55}
+    for f, n in counts.items():
+        g = random_set(n, 0, seed=f)
+        write_capture(tmp_path / f"av_{f:04d}.ply", GaussianSet(
+            g.positions * 0.1 + np.array([0.0, 0.6, 0.0]), g.orientations, g.scales * 0.03, np.full(n, 0.9), g.sh))
+    assert main(["import", str(tmp_path / "av_####.ply"), "-o", str(tmp_path / "av.usdc"), "--prim", "/World/Av",
+                 "--role", "avatar", "-q"]) == 0
+    m = 600
+    stage = new_stage(default_prim="World")
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(2)
+    floor = GaussianSet(np.stack([rng.uniform(-1, 1, m), np.zeros(m), rng.uniform(-1, 1, m)], 1),
+                        np.tile([1.0, 0, 0, 0], (m, 1)), np.tile([0.05, 0.005, 0.05], (m, 1)), np.full(m, 0.95),
+                        np.full((m, 1, 3), 0.8))
+    write_gaussian_prim(stage, "/World/Floor", floor)
+    from pxr import Gf, UsdLux
+
+    light = UsdLux.SphereLight.Define(stage, "/World/Lamp")
+    light.CreateIntensityAttr(30.0)
+    light.AddTranslateOp().Set(Gf.Vec3d(0.3, 2.5, 0.3))
+    stage.GetRootLayer().subLayerPaths = [str(tmp_path / "av.usdc")]
+    save_stage_atomic(stage, tmp_path / "shot.usdc")
+    assert main(["process", str(tmp_path / "shot.usdc"), "-o", str(tmp_path / "lit.usdc"), "-q"]) == 0, \
+        capsys.readouterr().err
+    lit = Usd.Stage.Open(str(tmp_path / "lit.usdc"))
+    src = Usd.Stage.Open(str(tmp_path / "av.usdc"))
+    for f, n in counts.items():
+        out = read_gaussian_prim(lit.GetPrimAtPath("/World/Av"), Usd.TimeCode(f))
+        before = read_gaussian_prim(src.GetPrimAtPath("/World/Av"), Usd.TimeCode(f))
+        assert out.count == before.count == n
+        np.testing.assert_array_equal(out.positions, before.positions)
+        assert np.abs(out.sh - before.sh).max() > 1e-3  # relit (and shadowed) at this frame
