@@ -93,9 +93,16 @@ def _cell_of(qx, qy, qz, origin, inv_cell):
 
 
 @njit(inline="always")
-def _in_range(ix, iy, iz):
-    """Whether the cell lies inside the clamped coordinate range [-2^20, 2^20 - 1]^3."""
-    return -_BIAS <= ix < _BIAS and -_BIAS <= iy < _BIAS and -_BIAS <= iz < _BIAS
+def _block_cell(cx, cy, cz, n, c, mask):
+    """Cell ``c`` of the ``(2n+1)^3`` block around cell (cx, cy, cz), in x, then y, then z order:
+    (bucket, packed key, ix, iy, iz); bucket -1 when the cell is outside the clamped range."""
+    m = 2 * n + 1
+    ix = cx - n + c // (m * m)
+    iy = cy - n + (c // m) % m
+    iz = cz - n + c % m
+    if not (-_BIAS <= ix < _BIAS and -_BIAS <= iy < _BIAS and -_BIAS <= iz < _BIAS):
+        return np.int64(-1), np.int64(0), ix, iy, iz
+    return _hash(ix, iy, iz, mask), _pack(ix, iy, iz), ix, iy, iz
 
 
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
@@ -180,23 +187,20 @@ def neighbour_slots(points, origin, cell_size, mask, cell_keys, bucket_start, qx
     n = np.int64(1) if radius <= cell_size else np.int64(np.ceil(radius * inv))
     cx, cy, cz = _cell_of(qx, qy, qz, origin, inv)
     cnt = 0
-    for ix in range(cx - n, cx + n + 1):
-        for iy in range(cy - n, cy + n + 1):
-            for iz in range(cz - n, cz + n + 1):
-                if not _in_range(ix, iy, iz):
-                    continue
-                b = _hash(ix, iy, iz, mask)
-                key = _pack(ix, iy, iz)
-                for t in range(bucket_start[b], bucket_start[b + 1]):
-                    dx = points[t, 0] - qx
-                    dy = points[t, 1] - qy
-                    dz = points[t, 2] - qz
-                    # distance first (cheap, vectorisable); the exact cell check then drops
-                    # points reached twice through colliding hashes
-                    if dx * dx + dy * dy + dz * dz <= r2 and cell_keys[t] == key and t != skip:
-                        if cnt < buf.shape[0]:
-                            buf[cnt] = t
-                            cnt += 1
+    for c in range((2 * n + 1) ** 3):
+        b, key, _, _, _ = _block_cell(cx, cy, cz, n, c, mask)
+        if b < 0:
+            continue
+        for t in range(bucket_start[b], bucket_start[b + 1]):
+            dx = points[t, 0] - qx
+            dy = points[t, 1] - qy
+            dz = points[t, 2] - qz
+            # distance first (cheap, vectorisable); the exact cell check then drops points
+            # reached twice through colliding hashes
+            if dx * dx + dy * dy + dz * dz <= r2 and cell_keys[t] == key and t != skip:
+                if cnt < buf.shape[0]:
+                    buf[cnt] = t
+                    cnt += 1
     return cnt
 
 
@@ -218,57 +222,52 @@ def _visit(points, origin, inv_cell, cell_size, mask, coords, start, order, pure
     total = 0.0
     if not (np.isfinite(qx) and np.isfinite(qy) and np.isfinite(qz)):
         return count, total
-    for ix in range(cx - n, cx + n + 1):
-        for iy in range(cy - n, cy + n + 1):
-            for iz in range(cz - n, cz + n + 1):
-                if not _in_range(ix, iy, iz):
-                    continue
-                b = _hash(ix, iy, iz, mask)
-                if start[b + 1] == start[b]:
-                    continue
-                key = _pack(ix, iy, iz)
-                if mode != 1 and ix > -_BIAS and iy > -_BIAS and iz > -_BIAS and \
-                        ix < _BIAS - 1 and iy < _BIAS - 1 and iz < _BIAS - 1:
-                    # min / max squared distance from q to the cell box widened by a margin that
-                    # covers floor() rounding of the cell assignment
-                    mind2 = 0.0
-                    maxd2 = 0.0
-                    for ax in range(3):
-                        qa = qx if ax == 0 else (qy if ax == 1 else qz)
-                        ia = ix if ax == 0 else (iy if ax == 1 else iz)
-                        lo = origin[ax] + ia * cell_size
-                        hi = lo + cell_size
-                        tol = 1e-6 * cell_size + 1e-14 * (abs(lo) + abs(hi) + abs(qa))
-                        lo -= tol
-                        hi += tol
-                        dlo = qa - lo
-                        dhi = hi - qa
-                        if dlo < 0.0:
-                            mind2 += dlo * dlo
-                        elif dhi < 0.0:
-                            mind2 += dhi * dhi
-                        far = max(abs(dlo), abs(dhi))
-                        maxd2 += far * far
-                    if mind2 > r2 or maxd2 < in2:
-                        continue  # entirely outside the shell
-                    if pure[b] == 1 and coords[start[b]] == key and maxd2 <= r2 and mind2 >= in2:
-                        count += start[b + 1] - start[b]
-                        if mode == 2:
-                            total += bsum[b]
-                        continue
-                for t in range(start[b], start[b + 1]):
-                    if coords[t] != key:
-                        continue
-                    dx = points[t, 0] - qx
-                    dy = points[t, 1] - qy
-                    dz = points[t, 2] - qz
-                    d2 = dx * dx + dy * dy + dz * dz
-                    if d2 <= r2 and d2 >= in2:
-                        if mode == 1:
-                            out_idx[count] = order[t]
-                        elif mode == 2:
-                            total += values[t]
-                        count += 1
+    for c in range((2 * n + 1) ** 3):
+        b, key, ix, iy, iz = _block_cell(cx, cy, cz, n, c, mask)
+        if b < 0 or start[b + 1] == start[b]:
+            continue
+        if mode != 1 and ix > -_BIAS and iy > -_BIAS and iz > -_BIAS and \
+                ix < _BIAS - 1 and iy < _BIAS - 1 and iz < _BIAS - 1:
+            # min / max squared distance from q to the cell box widened by a margin that
+            # covers floor() rounding of the cell assignment
+            mind2 = 0.0
+            maxd2 = 0.0
+            for ax in range(3):
+                qa = qx if ax == 0 else (qy if ax == 1 else qz)
+                ia = ix if ax == 0 else (iy if ax == 1 else iz)
+                lo = origin[ax] + ia * cell_size
+                hi = lo + cell_size
+                tol = 1e-6 * cell_size + 1e-14 * (abs(lo) + abs(hi) + abs(qa))
+                lo -= tol
+                hi += tol
+                dlo = qa - lo
+                dhi = hi - qa
+                if dlo < 0.0:
+                    mind2 += dlo * dlo
+                elif dhi < 0.0:
+                    mind2 += dhi * dhi
+                far = max(abs(dlo), abs(dhi))
+                maxd2 += far * far
+            if mind2 > r2 or maxd2 < in2:
+                continue  # entirely outside the shell
+            if pure[b] == 1 and coords[start[b]] == key and maxd2 <= r2 and mind2 >= in2:
+                count += start[b + 1] - start[b]
+                if mode == 2:
+                    total += bsum[b]
+                continue
+        for t in range(start[b], start[b + 1]):
+            if coords[t] != key:
+                continue
+            dx = points[t, 0] - qx
+            dy = points[t, 1] - qy
+            dz = points[t, 2] - qz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= r2 and d2 >= in2:
+                if mode == 1:
+                    out_idx[count] = order[t]
+                elif mode == 2:
+                    total += values[t]
+                count += 1
     return count, total
 
 
