@@ -1,22 +1,17 @@
 """Parallel JIT warm-up: compile the main job's relighting kernels in a second process.
 
-numba compiles a kernel on its first call, in one thread, and ``usdgs process`` needs about
-forty of them (~26 s of single-threaded compilation on a cold cache against ~0.76 s per warm
-frame on the 2-core development machine). The kernels are cached on disk (``cache=True``), so a
-second process that calls them first fills the cache, and the main process then loads them
-instead of compiling. :func:`start` launches ``python -m usd_gs.pipeline.jit_warmup GROUP ...`` when the
-cache is cold. The main job compiles, in this order, light estimation (~4.5 s), the shadow maps'
-preparation, accumulation and refined sampling (~8 s), then the relighting (normals, probe
-render, fit and transfer, ~13 s; single-threaded, idle machine). The warm-up takes the
-:data:`BACKGROUND` group, the relighting, touches a marker file when it is done and exits; the
-main process compiles the rest itself and, before it first relights, waits for the marker
-(:func:`wait_for`) instead of compiling the same kernels a second time (a duplicate costs the
-whole compile, a wait only what is left of it). Measured on the 48-frame demo: the main
-process is done compiling after ~16 s, the marker appears at ~15 s. (An earlier design
-compiled every later kernel in the warm-up in reverse order: both processes then compiled the
-shadow kernels, 64-66 s cold.) The warm-up calls the same wrapper functions as the main job, so
-the kernels see the same argument types and the cache entries match
-(``tests/test_jit_warmup.py`` checks it).
+numba compiles a kernel on its first call, in one thread, and ``usdgs process`` calls about
+forty of them. The kernels are cached on disk (``cache=True``), so a second process that calls
+them first fills the cache, and the main process then loads them instead of compiling.
+:func:`start` launches ``python -m usd_gs.pipeline.jit_warmup GROUP ...`` when the cache is
+cold. The main job compiles, in this order, light estimation, the shadow maps' preparation,
+accumulation and refined sampling, then the relighting (normals, probe render, fit and
+transfer). The warm-up takes the :data:`BACKGROUND` group, the relighting, touches a marker
+file when it is done and exits; the main process compiles the rest itself and, before it first
+relights, waits for the marker (:func:`wait_for`) instead of compiling the same kernels a second
+time. The warm-up calls the same wrapper functions as the main job, so the kernels see the same
+argument types and the cache entries match (``tests/test_jit_warmup.py`` checks it). Compile
+times and the cold-start timeline: docs/benchmarks.md (``benchmarks/bench_cold_start.py``).
 
 Nothing here changes a result: the warm-up writes only numba cache files, which numba
 replaces atomically, and a wait ends when the marker appears, the warm-up process ends, or
