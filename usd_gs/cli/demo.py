@@ -28,6 +28,8 @@ def cmd_demo_make(args) -> int:
         changes["room_detail_density"] = args.room_detail_density or None
     if args.monkey:
         changes["monkey"] = True
+    if getattr(args, "rigged_avatar", False):
+        changes["rigged_avatar"] = True
     opts = replace(base, **changes)
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
     if log:
@@ -81,6 +83,9 @@ def register_demo(sub, formatter):
     m.add_argument("--monkey", action="store_true",
                    help="also add /World/Monkey: the SOG flipbook sequences/monkey (50 frames, looped) as a "
                         "time-sampled avatar on the floor (usd_gs/demo/monkey.py)")
+    m.add_argument("--rigged-avatar", action="store_true",
+                   help="also add /World/TPoseAvatar: humans/tpose_avatar.ply bound to the MakeHuman skeleton "
+                        "(usdgs rig) walking on the spot with humans/makehuman_walk1.bvh (usd_gs/demo/rig.py)")
     m.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     m.set_defaults(handler=cmd_demo_make)
 

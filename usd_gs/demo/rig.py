@@ -526,7 +526,8 @@ def choose_joint_map(bvh_names: list[str], skeleton_names: list[str], explicit: 
     return mapping
 
 
-def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float = FPS, up: str = "auto"):
+def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float = FPS, up: str = "auto",
+                 in_place: bool = False):
     """(times (T,) seconds, local (T, J, 4, 4) parent-relative skeleton transforms) from a BVH.
 
     For each mapped skeleton joint: its world rotation is the BVH joint's world rotation (axes
@@ -535,7 +536,7 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     keep their rest orientation relative to the parent. The root's translation follows the BVH
     root, scaled by the ratio of rest hip heights, relative to the first frame horizontally.
     BVH up axis: ``auto`` (the rest pose's root -> head direction) or +y/+z. Frames are sampled at
-    ``fps`` (nearest BVH frame).
+    ``fps`` (nearest BVH frame). ``in_place`` drops the root's horizontal motion (a walk on the spot).
     """
     where = bvh.path
     mapping = choose_joint_map(bvh.names, src.names, joint_map, where)
@@ -629,7 +630,7 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     r0 = tindex[mapping[bvh.names[0]]]
     if src.parents[r0] < 0:
         delta = (root_pos - root_rest) * scale
-        delta[:, [0, 2]] -= delta[0, [0, 2]]
+        delta[:, [0, 2]] = 0.0 if in_place else delta[:, [0, 2]] - delta[0, [0, 2]]
         local[:, r0, :3, 3] = src.rest_local[r0, :3, 3] + delta
     return times, local
 
@@ -746,11 +747,7 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     UsdGeom.ModelAPI(root.GetPrim())
     joints = src.joint_paths
     sk = uskel.author_skeleton(stage, f"{prim_path}/Skeleton", joints, src.bind, src.rest_local)
-    trans = local[:, :, :3, 3]
-    lin = local[:, :, :3, :3]
-    sc = np.linalg.norm(lin, axis=2)  # column norms
-    rots = matrix_to_quaternion((lin / np.where(sc > 0, sc, 1.0)[:, :, None, :]).reshape(-1, 3, 3))
-    rots = rots.reshape(len(times), len(joints), 4)
+    trans, rots, sc = animation_arrays(local)
     uskel.author_animation(stage, f"{prim_path}/Skeleton/Motion", sk, joints, np.arange(len(times)) + 1.0, trans,
                            rots, sc)
     prim = write_gaussian_prim(stage, f"{prim_path}/Gaussians", rig_gs, keep_raw=False)
@@ -879,3 +876,70 @@ def author_gltf_skinned_avatar(stage, mesh, prim_path: str, skel_path: str, time
     prim = write_gaussian_prim(stage, prim_path, rest, keep_raw=False)
     uskel.bind_prim(prim, sk, idx, wts)
     return prim
+
+
+# ----------------------------------------------------------------------------- demo: the rigged T-pose capture
+RIGGED_FILES = {"avatar": "humans/tpose_avatar.ply", "skin": "humans/makehuman_base.obj",
+                "skeleton": "humans/makehuman_default.mhskel", "weights": "humans/makehuman_default_weights.mhw",
+                "motion": "humans/makehuman_walk1.bvh"}
+"""Inputs of :func:`write_rigged_avatar_layer`, relative to the data directory."""
+
+RIGGED_PLACEMENT = ((1.3, 0.0, 1.2), 41.5)
+"""(position metres, heading degrees about +Y) of the demo's rigged avatar: on the floor between
+the table and the biker's circle, facing the demo camera."""
+
+
+def animation_arrays(local: np.ndarray):
+    """(translations (T, J, 3), rotations (T, J, 4) wxyz, scales (T, J, 3)) of parent-relative
+    (T, J, 4, 4) matrices (scale = column norms; shear dropped)."""
+    lin = local[:, :, :3, :3]
+    sc = np.linalg.norm(lin, axis=2)
+    rots = matrix_to_quaternion((lin / np.where(sc > 0, sc, 1.0)[:, :, None, :]).reshape(-1, 3, 3))
+    return local[:, :, :3, 3], rots.reshape(local.shape[0], local.shape[1], 4), sc
+
+
+def write_rigged_avatar_layer(frames: int, data: Path, path: Path, fps: float = FPS,
+                              prim_path: str = "/World/TPoseAvatar") -> int:
+    """The demo layer of the rigged T-pose capture (:data:`RIGGED_FILES`): ``prim_path`` bound to
+    ``prim_path + "_Skeleton"`` (MakeHuman skeleton, T-posed bind), walking on the spot with the
+    MakeHuman walk (looped over ``frames`` at ``fps``), placed at :data:`RIGGED_PLACEMENT` by the
+    skeleton's transform; ``/World`` is a SkelRoot (as in the demo's root layer). Returns the count."""
+    from pxr import Gf, UsdGeom, UsdSkel
+
+    from usd_gs.io.bvh import read_bvh
+    from usd_gs.usd import skel as uskel
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
+
+    files = {k: Path(data) / v for k, v in RIGGED_FILES.items()}
+    missing = [str(p) for p in files.values() if not p.is_file()]
+    if missing:
+        raise UserError(f"the rigged avatar needs {', '.join(missing)} (missing)")
+    src = makehuman_source(files["skin"], files["skeleton"], files["weights"])
+    gs = read_avatar(files["avatar"])
+    m, _ = align_to_mesh(gs, src.vertices, faces=src.faces)
+    rig_gs = gs.transformed(m.T, label=prim_path)
+    idx, wts, _, _ = transfer_weights(src, rig_gs.positions.astype(np.float64))
+    times, local = retarget_bvh(src, read_bvh(files["motion"]), fps=fps, in_place=True)
+    cycle = np.arange(frames) % len(times)
+    local = local[cycle]
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(frames)
+    UsdSkel.Root.Define(stage, "/World")
+    joints = src.joint_paths
+    sk = uskel.author_skeleton(stage, prim_path + "_Skeleton", joints, src.bind, src.rest_local)
+    tr, rot, sc = animation_arrays(local)
+    uskel.author_animation(stage, prim_path + "_Skeleton/Walk", sk, joints, np.arange(1, frames + 1, dtype=np.float64),
+                           tr, rot, sc)
+    (x, y, z), heading = RIGGED_PLACEMENT
+    xf = UsdGeom.Xformable(sk)
+    xf.AddTranslateOp().Set(Gf.Vec3d(x, y, z))
+    xf.AddRotateYOp().Set(float(heading))
+    prim = write_gaussian_prim(stage, prim_path, rig_gs, keep_raw=False)
+    apply_role(prim, "avatar")
+    uskel.bind_prim(prim, sk, idx, wts)
+    save_stage_atomic(stage, path)
+    return rig_gs.count

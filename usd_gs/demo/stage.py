@@ -34,6 +34,10 @@ its animated data is tens of MB. Layout on disk, for ``-o stages/demo.usda``:
   silhouette then matches the mesh's); skinning a centre with blended weights differs from
   blending the skinned corners by a second-order term (median 0.3 mm, at most about 1 cm
   near the joints).
+- ``stages/demo_data/tpose_avatar.usdc`` (option ``rigged_avatar``): ``/World/TPoseAvatar``, role
+  avatar: the captured T-pose avatar ``humans/tpose_avatar.ply`` bound to the MakeHuman skeleton
+  (``usd_gs.demo.rig.write_rigged_avatar_layer``: ``/World/TPoseAvatar_Skeleton``, T-posed bind,
+  the MakeHuman walk on the spot looped over the frames), standing at ``rig.RIGGED_PLACEMENT``.
 - ``stages/demo_data/biker.usdc``: ``/World/Biker``, role avatar: the real capture
   ``splats/biker.ply`` with its canonical placement baked into the points (turned to face
   +Z, feet at y = 0, centred on the Y axis, uniformly scaled to :data:`BIKER_HEIGHT`), moved
@@ -165,6 +169,7 @@ class DemoOptions:
     seed: int = 0
     room_brick_size: int = 12000
     monkey: bool = False  # add the SOG flipbook monkey (usd_gs/demo/monkey.py) as /World/Monkey
+    rigged_avatar: bool = False  # add the T-pose capture rigged to MakeHuman, walking (usd_gs/demo/rig.py)
 
     def check(self) -> None:
         if self.frames < 1:
@@ -460,6 +465,8 @@ def _write_root(opts: DemoOptions, path: Path, data_folder: str, room) -> None:
     layer = Sdf.Layer.CreateAnonymous(".usda")
     layer.TransferContent(stage.GetRootLayer())
     names = (*LAYER_NAMES, "monkey") if opts.monkey else LAYER_NAMES
+    if opts.rigged_avatar:
+        names = (*names, "tpose_avatar")
     layer.subLayerPaths = [f"./{data_folder}/{name}.usdc" for name in names]
     save_stage_atomic(layer, path)
 
@@ -498,6 +505,8 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
     except OSError as exc:
         raise UserError(f"{output}: cannot create the data folder {folder} ({exc.strerror or exc})") from None
     layers = {name: folder / f"{name}.usdc" for name in (*LAYER_NAMES, "monkey") if name != "monkey" or opts.monkey}
+    if opts.rigged_avatar:
+        layers["tpose_avatar"] = folder / "tpose_avatar.usdc"
     say = log or (lambda *_: None)
 
     counts: dict[str, int] = {}
@@ -527,5 +536,10 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
 
         say("  monkey (SOG flipbook) ...")
         counts[PRIM_PATH] = write_monkey_layer(opts.frames, data, layers["monkey"], FPS)
+    if opts.rigged_avatar:
+        from usd_gs.demo.rig import write_rigged_avatar_layer
+
+        say("  rigged T-pose avatar (MakeHuman skeleton, walk) ...")
+        counts["/World/TPoseAvatar"] = write_rigged_avatar_layer(opts.frames, data, layers["tpose_avatar"], FPS)
     _write_root(opts, root, folder.name, room)
     return DemoResult(root, layers, counts, opts.frames, _time.perf_counter() - t0)
