@@ -252,14 +252,14 @@ def cmd_export(args) -> int:
 
 def register_export(sub, formatter):
     p = sub.add_parser("export", formatter_class=formatter,
-                       help="write Gaussian prims to .ply, .splat or .spz files for splat viewers",
+                       help="write Gaussian prims to .ply, .splat, .spz or .sog files for splat viewers",
                        description="Write the Gaussians of the listed prims (default: every visible Gaussian prim, "
                                    "merged) in world space (the prims' transforms applied; --local for one prim "
-                                   "in its own space) to an INRIA .ply, an antimatter15 .splat or an .spz, one "
-                                   "file per frame. On an output of 'usdgs process' the processed (shadowed, "
-                                   "relit) SH is what is written. With --frames A-B (or a frame token in -o and "
-                                   "no --time: the stage's whole time range) the output name needs a frame token: "
-                                   "out_####.splat.")
+                                   "in its own space) to an INRIA .ply, an antimatter15 .splat, an .spz or a "
+                                   "bundled .sog (SH degree 0 only), one file per frame. On an output of "
+                                   "'usdgs process' the processed (shadowed, relit) SH is what is written. With "
+                                   "--frames A-B (or a frame token in -o and no --time: the stage's whole time "
+                                   "range) the output name needs a frame token: out_####.splat.")
     p.add_argument("stage", help="input USD stage")
     p.add_argument("--prim", action="append",
                    help="a ParticleField3DGaussianSplat prim to export (repeatable; default: every visible Gaussian "
@@ -268,7 +268,7 @@ def register_export(sub, formatter):
                    help="time code: a number, 'default' or 'earliest' (default: earliest, the first frame)")
     p.add_argument("--frames", metavar="A-B", help="export frames A..B, one file each")
     p.add_argument("--local", action="store_true", help="export in prim-local space (one prim only)")
-    p.add_argument("-o", "--output", required=True, help="output .ply, .splat or .spz (with '####' for frames)")
+    p.add_argument("-o", "--output", required=True, help="output .ply, .splat, .spz or .sog (with '####' for frames)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=cmd_export)
 

@@ -3,8 +3,8 @@
 Readable: INRIA ``.ply``, PlayCanvas ``.compressed.ply`` (recognised by its header, whatever
 the name), antimatter15 ``.splat``, Niantic ``.spz``, SOG (bundled ``.sog``, ``meta.json``,
 LOD sets ``lod-meta.json``, or a folder holding one of those). Writable: ``.ply``, ``.splat``,
-``.spz``. No axis conversion is applied by any of them (SPZ is read and written in its native
-frame, as PlayCanvas splat-transform does).
+``.spz`` and bundled ``.sog`` (SH degree 0 only). No axis conversion is applied by any of them
+(SPZ is read and written in its native frame, as PlayCanvas splat-transform does).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from usd_gs.errors import InputFormatError, UserError
 from usd_gs.gaussians import GaussianSet
 
 READ_KINDS = ("ply", "compressed-ply", "splat", "spz", "sog")
-WRITE_EXTS = (".ply", ".splat", ".spz")
+WRITE_EXTS = (".ply", ".splat", ".spz", ".sog")
 READ_HELP = ".ply, .compressed.ply, .splat, .spz, .sog, meta.json, lod-meta.json or a SOG folder"
 
 
@@ -76,7 +76,8 @@ def read_capture(path, lod: int | None = None) -> GaussianSet:
 
 
 def write_capture(path, gaussians: GaussianSet) -> None:
-    """Write ``gaussians`` as ``.ply`` (INRIA), ``.splat`` or ``.spz`` (v3) by extension, atomically."""
+    """Write ``gaussians`` as ``.ply`` (INRIA), ``.splat``, ``.spz`` (v3) or ``.sog`` (bundled SOG v2,
+    SH degree 0) by extension, atomically."""
     ext = Path(path).suffix.lower()
     if ext == ".ply":
         from usd_gs.io.ply import write_ply
@@ -90,5 +91,9 @@ def write_capture(path, gaussians: GaussianSet) -> None:
         from usd_gs.io.spz import write_spz
 
         write_spz(path, gaussians)
+    elif ext == ".sog":
+        from usd_gs.io.sog import write_sog
+
+        write_sog(path, gaussians)
     else:
         raise UserError(f"{path}: output must end in {', '.join(WRITE_EXTS)}")

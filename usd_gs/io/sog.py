@@ -426,3 +426,114 @@ def read_sog(path, lod: int | None = None, threads: int | None = None) -> Gaussi
     out = _alloc(plan.count, plan.bands)
     _decode(plan, raw, out)
     return _to_set(out, label)
+
+
+# ---------------------------------------------------------------------------------- writing
+def _codebook(values: np.ndarray, k: int = 256, iterations: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """1-D k-means of ``values`` (any shape) into at most ``k`` sorted float32 centroids.
+
+    Returns (codebook, uint8 labels shaped like ``values``). Exact (the distinct values) when
+    there are at most ``k`` of them; else quantile start and Lloyd iterations in float64.
+    """
+    v = np.asarray(values, np.float64).ravel()
+    uniq = np.unique(v)
+    if len(uniq) <= k:
+        cb = uniq.astype(np.float32)
+        return cb, np.searchsorted(cb, v.astype(np.float32)).astype(np.uint8).reshape(np.shape(values))
+    sample = v if v.size <= 2_000_000 else v[:: v.size // 2_000_000 + 1]
+    c = np.quantile(sample, (np.arange(k) + 0.5) / k)
+    for _ in range(iterations):
+        lab = np.searchsorted((c[1:] + c[:-1]) / 2.0, sample)
+        cnt = np.bincount(lab, minlength=k)
+        tot = np.bincount(lab, weights=sample, minlength=k)
+        c = np.sort(np.where(cnt > 0, tot / np.maximum(cnt, 1), c))
+    cb = c.astype(np.float32)
+    mid = (cb[1:].astype(np.float64) + cb[:-1]) / 2.0
+    return cb, np.searchsorted(mid, v).astype(np.uint8).reshape(np.shape(values))
+
+
+def _encode_webp(rgba: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(rgba, "RGBA").save(buf, "WEBP", lossless=True, exact=True, quality=50, method=0)
+    return buf.getvalue()
+
+
+def encode_sog(gaussians: GaussianSet) -> dict[str, bytes]:
+    """The files of a SOG v2 (``meta.json`` and its WebP images) for ``gaussians``, in the
+    layout :func:`read_sog` reads, by name. SH degree 0 only (higher bands need a palette
+    k-means that is not cheap on a CPU: :class:`UserError`); Gaussians keep their order.
+
+    Quantisation: 16-bit ``sign(x) ln(|x| + 1)`` positions between the per-axis min and max,
+    256-entry 1-D k-means codebooks for log-scales and for the DC term (each shared by the
+    three channels), opacity ``round(255 a)``, smallest-three quaternions rounded to 8 bits.
+    """
+    from usd_gs.errors import UserError
+
+    g = gaussians
+    if g.sh_degree > 0:
+        raise UserError(f"{g.label}: SOG writing supports SH degree 0 only (this set has degree {g.sh_degree}); "
+                        "write .ply or .spz, or convert with PlayCanvas splat-transform")
+    n = g.count
+    if n == 0:
+        raise UserError(f"{g.label}: cannot write an empty SOG")
+    width = int(np.ceil(np.sqrt(n) / 4.0) * 4)
+    height = int(np.ceil(n / width / 4.0) * 4)
+    if width > 16383 or height > 16383:
+        raise UserError(f"{g.label}: {n} Gaussians exceed the 16383x16383 SOG image limit")
+
+    def image(channels: list[np.ndarray], alpha=None) -> bytes:
+        img = np.zeros((height * width, 4), np.uint8)
+        for j, c in enumerate(channels):
+            img[:n, j] = c
+        img[:, 3] = 255
+        if alpha is not None:
+            img[:n, 3] = alpha
+        return _encode_webp(img.reshape(height, width, 4))
+
+    lt = np.sign(g.positions.astype(np.float64)) * np.log1p(np.abs(g.positions.astype(np.float64)))
+    mins, maxs = lt.min(axis=0), lt.max(axis=0)
+    span = np.where(maxs > mins, maxs - mins, 1.0)
+    u = np.clip(np.rint((lt - mins) / span * 65535.0), 0, 65535).astype(np.uint16)
+    files = {"means_l.webp": image([u[:, j] & 0xFF for j in range(3)]),
+             "means_u.webp": image([u[:, j] >> 8 for j in range(3)])}
+
+    q = g.unit_quaternions()
+    big = np.argmax(np.abs(q), axis=1)
+    q *= np.where(q[np.arange(n), big] < 0, -1.0, 1.0)[:, None]
+    others = np.asarray(((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)))[big]
+    abc = np.take_along_axis(q, others, axis=1) * np.sqrt(2.0)
+    qb = np.clip(np.rint((abc * 0.5 + 0.5) * 255.0), 0, 255).astype(np.uint8)
+    files["quats.webp"] = image([qb[:, j] for j in range(3)], alpha=(252 + big).astype(np.uint8))
+
+    log_s = g.log_scales if g.log_scales is not None else np.log(g.scales.astype(np.float64))
+    scb, slab = _codebook(log_s)
+    files["scales.webp"] = image([slab[:, j] for j in range(3)])
+    ccb, clab = _codebook(g.sh[:, 0, :])
+    alpha = np.clip(np.rint(g.opacities.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    files["sh0.webp"] = image([clab[:, j] for j in range(3)], alpha=alpha)
+    meta = {"version": 2, "asset": {"generator": "usd-gs"}, "count": int(n),
+            "means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
+            "scales": {"codebook": scb.tolist(), "files": ["scales.webp"]},
+            "quats": {"files": ["quats.webp"]},
+            "sh0": {"codebook": ccb.tolist(), "files": ["sh0.webp"]}}
+    files["meta.json"] = json.dumps(meta).encode()
+    return files
+
+
+def write_sog(path, gaussians: GaussianSet) -> None:
+    """Write ``gaussians`` (see :func:`encode_sog`) as a bundled ``.sog`` zip, or, for a path
+    named ``meta.json``, as a SOG folder (the images beside it). Written atomically."""
+    from usd_gs.io.atomic import atomic_output
+
+    files = encode_sog(gaussians)
+    p = Path(path)
+    if p.name.lower() == "meta.json":
+        for name, data in files.items():
+            with atomic_output(p.parent / name) as tmp:
+                tmp.write_bytes(data)
+        return
+    with atomic_output(p) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
+        for name in ("meta.json", *sorted(k for k in files if k != "meta.json")):
+            zf.writestr(name, files[name])
