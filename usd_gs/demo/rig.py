@@ -24,7 +24,7 @@ Weight transfer (:func:`transfer_weights`): closest point on the skin (candidate
 triangle centroids and the faces of the nearest vertex, exact point-triangle distances from
 ``trimesh.triangles.closest_point``), barycentric blend of the triangle's vertex weights, kept
 to the ``influences`` largest and renormalised; centres farther than ``max_distance`` take the
-nearest vertex's weights and are counted.
+nearest skin vertex's weights (vertices that no skin face uses are ignored) and are counted.
 
 Motion: a BVH (``usd_gs.io.bvh``) retargeted by joint names (:func:`retarget_bvh`) or the glTF's
 own animation. trimesh and scipy are imported inside the functions that use them.
@@ -347,22 +347,30 @@ def align_to_mesh(gs: GaussianSet, vertices: np.ndarray, up: str = "+y", facing:
     vc = np.array([(vlo[0] + vhi[0]) / 2, vlo[1], (vlo[2] + vhi[2]) / 2])
     m[:3, 3] = vc - qc
     rng = np.random.default_rng(seed)
-    sample = p[rng.choice(len(p), size=min(len(p), 4000), replace=False)]
+    sample = p[rng.choice(len(p), size=min(len(p), 3000), replace=False)]
+
+    if faces is None:
+        from scipy.spatial import cKDTree
+
+        vtree = cKDTree(vertices)
+    else:
+        surface = SurfaceQuery(vertices, faces)
 
     def closest(x):
         if faces is None:
-            from scipy.spatial import cKDTree
-
-            dist, idx = cKDTree(vertices).query(x)
+            dist, idx = vtree.query(x)
             return vertices[idx], dist
-        face, bary, dist = closest_surface_points(vertices, faces, x)
+        face, bary, dist = surface.query(x)
         return np.einsum("nk,nkd->nd", bary, vertices[faces[face]]), dist
 
     for _ in range(max(0, icp_iterations)):
         x = sample @ m[:3, :3].T + m[:3, 3]
         target, dist = closest(x)
         ok = dist < 3 * np.median(dist) + 1e-9
-        m = _umeyama(x[ok], target[ok]) @ m
+        step = _umeyama(x[ok], target[ok])
+        m = step @ m
+        if np.abs(step - np.eye(4)).max() < 1e-6:  # converged (sub-micrometre update)
+            break
     resid = float(np.median(closest(sample @ m[:3, :3].T + m[:3, 3])[1]))
     scale = float(abs(np.linalg.det(m[:3, :3])) ** (1 / 3))
     return m, {"scale": scale, "facing": f.tolist(), "median_distance_m": resid}
@@ -385,42 +393,56 @@ def parse_matrix(text: str) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- weights
+class SurfaceQuery:
+    """Closest points on a triangle mesh (module docstring): KD-trees of the triangle centroids and
+    of the skin vertices, built once; exact point-triangle distances by ``trimesh``."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self.vertices, self.faces = vertices, faces
+        self.tri = vertices[faces]
+        self.centroids = cKDTree(self.tri.mean(axis=1))
+        self.used = np.unique(faces)  # vertices no face uses (helper geometry) are ignored
+        self.vtree = cKDTree(vertices[self.used])
+        self.vertex_faces = _vertex_faces(len(vertices), faces)
+
+    def query(self, points: np.ndarray):
+        """(face index (N,), barycentrics (N, 3), distance (N,)) of each point's closest surface point."""
+        import trimesh
+
+        tri, faces = self.tri, self.faces
+        k = min(12, len(faces))
+        _, cand = self.centroids.query(points, k=k)
+        cand = cand.reshape(len(points), -1)
+        _, nv = self.vtree.query(points)
+        cand = np.concatenate([cand, self.vertex_faces[self.used[nv]]], axis=1)
+        n, c = cand.shape
+        flat = cand.reshape(-1)
+        rep = np.repeat(points, c, axis=0)
+        out = np.empty((n, 3))
+        best = np.empty(n, np.int64)
+        dist = np.empty(n)
+        step = max(1, 400000 // c)
+        for a in range(0, n, step):
+            sl = slice(a * c, min(n, a + step) * c)
+            cp = trimesh.triangles.closest_point(tri[flat[sl]], rep[sl])
+            d = np.linalg.norm(cp - rep[sl], axis=1).reshape(-1, c)
+            arg = np.argmin(d, axis=1)
+            rows = np.arange(d.shape[0])
+            best[a:a + d.shape[0]] = cand[a:a + d.shape[0]][rows, arg]
+            dist[a:a + d.shape[0]] = d[rows, arg]
+            out[a:a + d.shape[0]] = cp.reshape(-1, c, 3)[rows, arg]
+        bary = trimesh.triangles.points_to_barycentric(tri[best], out)
+        bary = np.clip(np.nan_to_num(bary, nan=1 / 3), 0.0, 1.0)
+        bary /= np.maximum(bary.sum(axis=1, keepdims=True), 1e-12)
+        return best, bary, dist
+
+
 def closest_surface_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray):
     """(face index (N,), barycentrics (N, 3), distance (N,)) of each point's closest point on the
-    triangle mesh (module docstring: KD-tree candidates, exact trimesh point-triangle distances)."""
-    import trimesh
-    from scipy.spatial import cKDTree
-
-    tri = vertices[faces]
-    cent = tri.mean(axis=1)
-    k = min(12, len(faces))
-    _, cand = cKDTree(cent).query(points, k=k)
-    cand = cand.reshape(len(points), -1)
-    # faces of the nearest vertex (padded with its first face)
-    vtree = cKDTree(vertices)
-    _, nv = vtree.query(points)
-    vf = _vertex_faces(len(vertices), faces)
-    cand = np.concatenate([cand, vf[nv]], axis=1)
-    n, c = cand.shape
-    flat = cand.reshape(-1)
-    rep = np.repeat(points, c, axis=0)
-    out = np.empty((n, 3))
-    best = np.empty(n, np.int64)
-    dist = np.empty(n)
-    step = max(1, 400000 // c)
-    for a in range(0, n, step):
-        sl = slice(a * c, min(n, a + step) * c)
-        cp = trimesh.triangles.closest_point(tri[flat[sl]], rep[sl])
-        d = np.linalg.norm(cp - rep[sl], axis=1).reshape(-1, c)
-        arg = np.argmin(d, axis=1)
-        rows = np.arange(d.shape[0])
-        best[a:a + d.shape[0]] = cand[a:a + d.shape[0]][rows, arg]
-        dist[a:a + d.shape[0]] = d[rows, arg]
-        out[a:a + d.shape[0]] = cp.reshape(-1, c, 3)[rows, arg]
-    bary = trimesh.triangles.points_to_barycentric(tri[best], out)
-    bary = np.clip(np.nan_to_num(bary, nan=1 / 3), 0.0, 1.0)
-    bary /= np.maximum(bary.sum(axis=1, keepdims=True), 1e-12)
-    return best, bary, dist
+    triangle mesh (:class:`SurfaceQuery`)."""
+    return SurfaceQuery(vertices, faces).query(points)
 
 
 def _vertex_faces(nv: int, faces: np.ndarray, width: int = 8) -> np.ndarray:
@@ -449,7 +471,9 @@ def transfer_weights(src: RigSource, points: np.ndarray, influences: int = 4, ma
     w = (src.weights[corners].astype(np.float64) * bary[:, :, None]).reshape(len(points), 3 * kv)
     far = dist > max_distance
     if far.any():
-        _, nv = cKDTree(src.vertices).query(points[far])
+        used = np.unique(src.faces)  # skin vertices only (a MakeHuman obj also holds helper geometry)
+        _, nv = cKDTree(src.vertices[used]).query(points[far])
+        nv = used[nv]
         idx[far] = np.tile(src.joint_indices[nv], (1, 3))
         w[far] = np.concatenate([src.weights[nv].astype(np.float64), np.zeros((len(nv), 2 * kv))], axis=1)
     # merge duplicate joints of a row (a dense row per Gaussian, in chunks), keep the largest K
@@ -756,11 +780,11 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     # the rest-pose extent is what UsdSkel-unaware tools see; skinned bounds come from describe
     save_stage_atomic(stage, output)
     result = RigResult(Path(output), rig_gs.count, len(joints), len(times), far, info, notes=list(src.notes))
-    # stretch statistic over the motion (every 4th frame)
+    # stretch statistic over the motion (about 6 frames)
     from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
     shares = []
-    for f in range(1, len(times) + 1, max(1, len(times) // 12)):
+    for f in range(1, len(times) + 1, max(1, len(times) // 6)):
         shares.append(stretched_share(rig_gs, read_gaussian_prim(stage.GetPrimAtPath(f"{prim_path}/Gaussians"), f)))
     result.stretched_share = float(np.mean(shares)) if shares else None
     return result
