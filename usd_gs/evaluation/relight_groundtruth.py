@@ -312,14 +312,17 @@ def psnr(a, b, peak: float = 1.0) -> float:
 
 
 def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None, dilation: float | None = None,
-                         normals: np.ndarray | None = None):
+                         normals: np.ndarray | None = None, lights=(), visibility=None, others_mask=None,
+                         appearance: dict | None = None):
     """The main job's relighting of one avatar: ``(relit SH (N, K, 3), probe, normals)``.
 
     Calls what ``ShotProcessor._relight`` calls, with ``ProcessOptions`` (defaults if None):
     outward ``gaussian_normals`` (or the given ``normals`` (N, 3)), ``ProbeBlend`` and
     ``usd_gs.relight.avatar.relight_factors`` at the alpha-weighted centroid with ``others``
-    drawn, and the eq. 10 scaling of the SH. ``dilation``: the probe render's low-pass term in
-    px^2 (None: its default, which is what the main job uses).
+    drawn, and the relit colour factor applied to the SH. ``dilation``: the probe render's low-pass
+    term in px^2 (None: its default, which is what the main job uses). ``lights`` /
+    ``visibility`` / ``appearance``: as ``relight_factors`` takes them; ``others_mask`` (bool,
+    ``others.count``): which of ``others`` the probe draws (None: all).
     """
     from numba_kernels.normals import gaussian_normals
     from usd_gs.gaussians import alpha_weighted_centroid
@@ -334,12 +337,15 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     everything = GaussianSet.concatenate([others, avatar], label="shot")
     mask = np.ones(everything.count, bool)
     mask[others.count:] = False
+    if others_mask is not None:
+        mask[:others.count] = np.asarray(others_mask, bool)
     if normals is None:
         normals = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
     scale, probe = relight_factors(avatar, everything, mask, centre, normals,
                                    ProbeBlend.build(avatar.positions, o.probe_points), o,
-                                   PROBE_DILATION if dilation is None else dilation)
-    return scale_sh(avatar.sh, o.relight_gamma * scale), probe, normals
+                                   PROBE_DILATION if dilation is None else dilation, lights=lights,
+                                   visibility=visibility, appearance=appearance)
+    return scale_sh(avatar.sh, scale), probe, normals
 
 
 def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=(16, 32), hdr=None,
@@ -382,7 +388,7 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
     centre = alpha_weighted_centroid(avatar)
     truth_c = avatar_ground_truth(scene, avatar, albedo, at=centre, oversample=oversample)
     t["ground_truth"] = time.perf_counter() - t0
-    opts = ProcessOptions()
+    opts = ProcessOptions(color_space="linear")  # this generator bakes and stores linear colours
     if probe_size is not None:
         opts = replace(opts, probe_size=int(probe_size))
     if probe_supersample is not None:
