@@ -558,7 +558,8 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     converted to rig space) times the rotation taking the skeleton bone's bind direction to the
     BVH bone's rest direction (the child offset, when the BVH joint has one child); unmapped joints
     keep their rest orientation relative to the parent. The root's translation follows the BVH
-    root, scaled by the ratio of rest hip heights, relative to the first frame horizontally.
+    root relative to its first frame (the first frame stands at the bind pose's root position),
+    scaled by the ratio of rest hip heights.
     BVH up axis: ``auto`` (the rest pose's root -> head direction) or +y/+z. Frames are sampled at
     ``fps`` (nearest BVH frame). ``in_place`` drops the root's horizontal motion (a walk on the spot).
     """
@@ -636,7 +637,6 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     nt, nj = len(times), len(src.names)
     rot_b = np.einsum("ab,tjbc,dc->tjad", c, glob_b[:, :, :3, :3], c)  # C R C^T
     root_pos = np.einsum("ab,tb->ta", c, glob_b[:, root_b, :3, 3])
-    root_rest = c @ rest_pos[root_b]
     local = np.broadcast_to(src.rest_local, (nt, nj, 4, 4)).copy()
     glob_rot = np.zeros((nt, nj, 3, 3))
     bind_rot = src.bind[:, :3, :3]
@@ -653,8 +653,11 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
         local[:, j, :3, :3] = np.einsum("tba,tbc->tac", parent_rot, g)
     r0 = tindex[mapping[bvh.names[0]]]
     if src.parents[r0] < 0:
-        delta = (root_pos - root_rest) * scale
-        delta[:, [0, 2]] = 0.0 if in_place else delta[:, [0, 2]] - delta[0, [0, 2]]
+        # relative to the first frame: BVH root heights are absolute in some files (CMU: offset 0,
+        # channel = hip height) and offset-relative in others (MakeHuman)
+        delta = (root_pos - root_pos[0]) * scale
+        if in_place:
+            delta[:, [0, 2]] = 0.0
         local[:, r0, :3, 3] = src.rest_local[r0, :3, 3] + delta
     return times, local
 
