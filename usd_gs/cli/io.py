@@ -175,19 +175,19 @@ def register_import(sub, formatter):
 
 # ----------------------------------------------------------------------------- export
 def _export_prims(stage, args, time):
-    """The Gaussian prims to export: the --prim ones, else every visible one."""
+    """The Gaussian prims to export at ``time``: the --prim ones, else every one that is
+    visible then and has purpose default or render (guides and proxies are left out)."""
     from pxr import UsdGeom
 
     from usd_gs.usd.gaussian_prim import find_gaussian_prims
     from usd_gs.usd.stage import gaussian_prim
 
-    if not args.prim:
-        prims = [p for p in find_gaussian_prims(stage)
-                 if UsdGeom.Imageable(p).ComputeVisibility(time) != UsdGeom.Tokens.invisible]
-        if not prims:
-            raise UserError(f"{args.stage}: no visible Gaussian prim to export")
-        return prims
-    return [gaussian_prim(stage, text, args.stage) for text in args.prim]
+    if args.prim:
+        return [gaussian_prim(stage, text, args.stage) for text in args.prim]
+    shown = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
+    return [p for p in find_gaussian_prims(stage)
+            if UsdGeom.Imageable(p).ComputeVisibility(time) != UsdGeom.Tokens.invisible
+            and UsdGeom.Imageable(p).ComputePurpose() in shown]
 
 
 def _export_frames(stage, args) -> list:
@@ -218,6 +218,7 @@ def _export_frames(stage, args) -> list:
 
 def cmd_export(args) -> int:
     from usd_gs.gaussians import GaussianSet
+    from usd_gs.io.checks import check_exportable
     from usd_gs.io.formats import WRITE_EXTS, write_capture
     from usd_gs.usd.gaussian_prim import read_gaussian_prim
     from usd_gs.usd.stage import open_stage
@@ -234,8 +235,14 @@ def cmd_export(args) -> int:
     if args.local and len(prims) != 1:
         raise UserError("--local needs exactly one Gaussian prim (prim-local spaces cannot be merged)")
     total = 0
-    for tc, out in frames:
+    for i, (tc, out) in enumerate(frames):
+        if i and not args.prim:
+            prims = _export_prims(stage, args, tc)  # visibility may be animated
+        if not prims:
+            raise UserError(f"{args.stage}: no visible Gaussian prim to export at time {tc.GetValue():g}")
         sets = [read_gaussian_prim(prim, tc, world=not args.local) for prim in prims]
+        for s in sets:
+            check_exportable(s)  # opacities outside [0, 1]: refused, the element named (issue #17)
         g = sets[0] if len(sets) == 1 else GaussianSet.concatenate(sets, label=args.stage)
         write_capture(out, g)
         total += g.count
