@@ -234,3 +234,28 @@ def test_cli_exit_2_on_bad_binding(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1
     assert "/Root/GS" in err[0] and "primvars:skel:jointIndices' element 0" in err[0] and "is -1" in err[0]
+
+
+def test_bake_skinning_into_an_output_layer(tmp_path):
+    """``bake_skinning`` in a layer over the input: every reader then sees the baked frames (the
+    binding is blocked), equal to the skinned evaluation; the input layer is untouched."""
+    stage, g, idx, w = build_stage(degree=1)
+    src = tmp_path / "in.usda"
+    stage.GetRootLayer().Export(str(src))
+    src_stage = Usd.Stage.Open(str(src))
+    want = {t: read_gaussian_prim(src_stage.GetPrimAtPath("/Root/GS"), t) for t in (1.0, 3.0)}
+    out = Sdf.Layer.CreateNew(str(tmp_path / "out.usda"))
+    out.subLayerPaths = [str(src)]
+    st = Usd.Stage.Open(out)
+    assert uskel.bake_skinning(st, "/Root/GS", [1.0, 2.0, 3.0]) == 3
+    out.Save()
+    baked = Usd.Stage.Open(str(tmp_path / "out.usda"))
+    prim = baked.GetPrimAtPath("/Root/GS")
+    assert not uskel.has_skel_binding(prim)
+    assert prim.GetAttribute("positions").GetTimeSamples() == [1.0, 2.0, 3.0]
+    for t, ref in want.items():
+        got = read_gaussian_prim(prim, t)
+        np.testing.assert_allclose(got.positions, ref.positions, atol=1e-5)
+        np.testing.assert_allclose(got.sh, ref.sh, atol=1e-5)
+        np.testing.assert_allclose(np.abs(np.sum(got.orientations * ref.orientations, axis=1)), 1.0, atol=1e-5)
+    assert uskel.has_skel_binding(src_stage.GetPrimAtPath("/Root/GS"))
