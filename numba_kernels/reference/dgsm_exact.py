@@ -1,6 +1,7 @@
 """Reference of :mod:`numba_kernels.dgsm_exact` (tests only).
 
-``optical_depth_numpy``: float64 numpy, vectorised over occluders, a Python loop over points;
+``optical_depth_numpy`` (and the kernels' names ``optical_depth_point`` / ``optical_depth_directional``):
+float64 numpy, vectorised over occluders, a Python loop over points;
 the stable closed form written independently of the numba kernels (``erf`` / ``erfc`` from
 ``math``, element by element). The per-occluder segment integral itself has its
 arbitrary-precision references in :mod:`numba_kernels.reference.dgsm_model`;
@@ -59,6 +60,19 @@ def optical_depth_numpy(origin_or_none, points, occ, dir_dep: int, direction=Non
         beta = amp * np.sqrt(a) if dir_dep else amp
         out[j] = np.sum(beta * np.sqrt(np.pi / (2 * a)) * np.exp(-0.5 * m2) * np.maximum(diff, 0.0))
     return out
+
+
+
+def optical_depth_point(light, points, occ, dir_dep: int) -> np.ndarray:
+    """``dgsm_exact.optical_depth_point``: (M,) optical depth from a point ``light`` (3,)."""
+    return optical_depth_numpy(np.asarray(light, dtype=np.float64), points, occ, dir_dep)
+
+
+def optical_depth_directional(direction, points, occ, dir_dep: int) -> np.ndarray:
+    """``dgsm_exact.optical_depth_directional``: (M,) optical depth along the whole line towards a
+    directional light propagating along ``direction`` (3,) (normalised here)."""
+    d = np.asarray(direction, dtype=np.float64)
+    return optical_depth_numpy(None, points, occ, dir_dep, direction=d / np.linalg.norm(d))
 
 
 def optical_depth_point_mpmath(light, x, occ, dir_dep: int, dps: int = 50) -> float:

@@ -26,7 +26,7 @@ def _colors_from(sh, positions, viewer):
     return np.maximum(threedgs_color(sh, d), 0.0)
 
 
-def reference_cues(positions, opacities, sh, centroid, viewpoints, cfg):
+def score_cues(positions, opacities, sh, centroid, viewpoints, cfg):
     """In-ROI mask and per-Gaussian (mean_y, max_y, stability, dominance, lum), zero outside."""
     p = positions.astype(np.float64)
     a = opacities.astype(np.float64)
@@ -46,11 +46,11 @@ def reference_cues(positions, opacities, sh, centroid, viewpoints, cfg):
     return in_roi, z(mean_y), z(max_y), z(stab), z(dom), z(lum)
 
 
-def reference_estimate(positions, opacities, sh, centroid, viewpoints, k, cfg) -> dict:
+def estimate_lights_arrays(positions, opacities, sh, centroid, viewpoints, k, cfg) -> dict:
     """Same outputs as ``light_estimation.estimate_lights_arrays`` (minus ``status``)."""
     p = positions.astype(np.float64)
     centroid = np.asarray(centroid, dtype=np.float64)
-    in_roi, _my, _xy, stab, dom, lum = reference_cues(positions, opacities, sh, centroid, viewpoints, cfg)
+    in_roi, _my, _xy, stab, dom, lum = score_cues(positions, opacities, sh, centroid, viewpoints, cfg)
     roi = np.flatnonzero(in_roi)
     knee = 0.0
     if roi.size:
