@@ -13,7 +13,7 @@ from usd_gs.cli import main
 @pytest.fixture(scope="module")
 def processed(quick_demo, tmp_path_factory):
     out = tmp_path_factory.mktemp("eval") / "demo.lit.usdc"
-    assert main(["process", str(quick_demo), "-o", str(out), "--frames", "1", "-q"]) == 0
+    assert main(["process", str(quick_demo), "-o", str(out), "--frames", "1", "-q", "--aovs", "transmittance"]) == 0
     return out
 
 

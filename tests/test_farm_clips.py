@@ -64,7 +64,8 @@ def test_chunked_run_is_value_identical(shot, tmp_path):
 def test_chunk_layers_and_topology(shot, tmp_path):
     path, _ = shot
     out = tmp_path / "stitched.usdc"
-    assert main(["process", str(path), "-o", str(out), "--frames", "1-3", "--chunk-size", "2", "-q"]) == 0
+    assert main(["process", str(path), "-o", str(out), "--frames", "1-3", "--chunk-size", "2", "-q",
+                 "--aovs", "transmittance"]) == 0
     clips = tmp_path / "stitched_clips"
     c0, c1 = (Sdf.Layer.FindOrOpen(str(clips / n)) for n in ("chunk_0001_0002.usdc", "chunk_0003_0003.usdc"))
     assert (c0.startTimeCode, c0.endTimeCode, c1.startTimeCode, c1.endTimeCode) == (1, 2, 3, 3)
@@ -73,18 +74,23 @@ def test_chunk_layers_and_topology(shot, tmp_path):
     assert Sdf.ComputeAssetPathRelativeToLayer(root, root.subLayerPaths[1]) == str(path)
     topo = Sdf.Layer.FindOrOpen(str(tmp_path / "stitched.topology.usdc"))
     src = Usd.Stage.Open(str(path))
-    n_gauss = 0
+    n_gauss = n_sh = 0
     for spec in topo.GetPrimAtPath("/World/Room").nameChildren:
         n_gauss += 1
         assert spec.typeName == "ParticleField3DGaussianSplat"
         deg = spec.attributes["radiance:sphericalHarmonicsDegree"]
         assert deg.default == 1 and deg.variability == Sdf.VariabilityUniform
-        sh = spec.attributes["radiance:sphericalHarmonicsCoefficients"]
-        assert sh.GetInfo("interpolation") == "vertex" and sh.GetInfo("elementSize") == 4
+        if "radiance:sphericalHarmonicsCoefficientsh" in spec.attributes:  # SH written: half, the float blocked
+            n_sh += 1
+            shh = spec.attributes["radiance:sphericalHarmonicsCoefficientsh"]
+            assert shh.GetInfo("interpolation") == "vertex" and shh.GetInfo("elementSize") == 4
+            sh = spec.attributes["radiance:sphericalHarmonicsCoefficients"]
+            assert sh.GetInfo("interpolation") == "vertex" and sh.GetInfo("elementSize") == 4
+            assert isinstance(sh.default, Sdf.ValueBlock)
         tr = spec.attributes["primvars:usdgs:transmittance"]
         assert tr.GetInfo("interpolation") == "vertex" and not tr.HasInfo("timeSamples")
         assert src.GetPrimAtPath(spec.path).GetTypeName() == "ParticleField3DGaussianSplat"
-    assert n_gauss > 0
+    assert n_gauss > 0 and n_sh > 0
     # the stitched stage reads like the normal output: lights, probes, time samples at the frames
     st = Usd.Stage.Open(str(out))
     assert st.GetPrimAtPath("/UsdGs/Lights/Light_0").GetTypeName() == "SphereLight"

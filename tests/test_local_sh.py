@@ -34,7 +34,8 @@ def test_rotated_prim_gets_local_frame_sh(quick_demo, tmp_path):
     apply_role(prim, "avatar")
     stage.GetRootLayer().Save()
     out = tmp_path / "spin.lit.usdc"
-    assert main(["process", str(shot), "-o", str(out), "--frames", "2", "-q"]) == 0
+    assert main(["process", str(shot), "-o", str(out), "--frames", "2", "-q", "--aovs", "transmittance,lightScale",
+                 "--precision", "float", "--sh-tolerance", "0"]) == 0
 
     local = read_gaussian_prim(prim, Usd.TimeCode(2), world=False).sh.astype(np.float64)
     world = read_gaussian_prim(prim, Usd.TimeCode(2)).sh.astype(np.float64)

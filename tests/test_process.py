@@ -12,6 +12,9 @@ from usd_gs import sh3dgs
 from usd_gs.cli import main
 from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
+#: the main job writing every AOV exactly (float SH, every change): for comparisons with references
+EXACT = ("--aovs", "transmittance,lightScale", "--precision", "float", "--sh-tolerance", "0")
+
 FRAMES = "1-2"
 
 
@@ -31,8 +34,10 @@ def _shot_over(demo: Path, shot: Path) -> Usd.Stage:
 def processed(quick_demo, tmp_path_factory):
     out = tmp_path_factory.mktemp("out") / "demo.lit.usdc"
     before = {p: _digest(p) for p in quick_demo.parent.rglob("*") if p.is_file()}
-    # centre sampling: transmittance is then comparable with the exact function at the centres
-    assert main(["process", str(quick_demo), "-o", str(out), "--frames", FRAMES, "-q", "--sampling", "center"]) == 0
+    # centre sampling: transmittance is then comparable with the exact function at the centres; every AOV, in
+    # float and with every change written, so the values compare exactly
+    assert main(["process", str(quick_demo), "-o", str(out), "--frames", FRAMES, "-q", "--sampling", "center",
+                 *EXACT]) == 0
     after = {p: _digest(p) for p in quick_demo.parent.rglob("*") if p.is_file()}
     return out, before, after
 
@@ -137,14 +142,15 @@ def test_avatars_relit_with_probe(processed, quick_demo):
         assert coeffs.shape == (16, 3) and np.all(np.isfinite(coeffs))
         tex = probe.GetAttribute("usdgs:probe:texture").Get(2.0)
         assert Path(tex.resolvedPath).is_file() and tex.resolvedPath.endswith(".0002.exr")
-        # relit colour = light scale * transmittance * original colour (gamma 1, direct fraction 1)
+        # relit colour = light scale * original colour: since issue 18 the light scale holds the
+        # prim's shadows too (each light's visibility on that light's share of the irradiance;
+        # before, relit = scale * transmittance * original, the shadow on all of the light)
         s = np.array(scale_attr.Get(2.0), np.float64)
         t = np.array(prim.GetAttribute("primvars:usdgs:transmittance").Get(2.0), np.float64)
         lit = read_gaussian_prim(prim, Usd.TimeCode(2.0), world=False)
         orig = read_gaussian_prim(src.GetPrimAtPath(prim.GetPath()), Usd.TimeCode(2.0), world=False)
         d = np.tile([0.0, 0.0, 1.0], (lit.count, 1))
-        np.testing.assert_allclose(sh3dgs.eval_color(lit.sh, d), s * t[:, None] * sh3dgs.eval_color(orig.sh, d),
-                                   atol=1e-4)
+        np.testing.assert_allclose(sh3dgs.eval_color(lit.sh, d), s * sh3dgs.eval_color(orig.sh, d), atol=1e-4)
         assert np.all(s >= 0) and s.mean() > 0.05
         # the avatars stand in the open: most of their Gaussians see the lights
         assert np.mean(t > 0.5) > 0.7, (name, t.mean())
@@ -223,7 +229,7 @@ def test_distant_light_uses_directional_dgsm(quick_demo, tmp_path):
     sun.CreateIntensityAttr(3.0)
     stage.GetRootLayer().Save()
     out = tmp_path / "sun.lit.usdc"
-    assert main(["process", str(shot), "-o", str(out), "--frames", "1", "--sampling", "center", "-q"]) == 0
+    assert main(["process", str(shot), "-o", str(out), "--frames", "1", "--sampling", "center", "-q", *EXACT]) == 0
     lit = Usd.Stage.Open(str(out))
     casters = GaussianSet.concatenate([read_gaussian_prim(lit.GetPrimAtPath(f"/World/{n}"), Usd.TimeCode(1))
                                        for n in ("CesiumMan", "Biker", "Guitar")])
@@ -283,7 +289,7 @@ def test_a_static_avatar_is_relit_and_casts(tmp_path):
     write_gaussian_prim(stage, "/World/Statue", avatar)
     src = save_stage_atomic(stage, tmp_path / "shot.usda")
     out = tmp_path / "shot.lit.usdc"
-    assert main(["process", str(src), "--avatar", "/World/Statue", "--lights", "2", "-o", str(out), "-q"]) == 0
+    assert main(["process", str(src), "--avatar", "/World/Statue", "--lights", "2", "-o", str(out), "-q", *EXACT]) == 0
     lit = Usd.Stage.Open(str(out))
     scale = lit.GetPrimAtPath("/World/Statue").GetAttribute("primvars:usdgs:lightScale")
     assert scale and scale.GetNumTimeSamples() >= 1 and len(scale.Get(scale.GetTimeSamples()[0])) == avatar.count

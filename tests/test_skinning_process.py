@@ -5,7 +5,6 @@ reading the output back gives the skinned Gaussians with the relit colour."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from pxr import Gf, Usd, UsdSkel
 
 from usd_gs.gaussians import matrix_to_quaternion
@@ -89,8 +88,6 @@ def test_process_skinned_avatar(tmp_path):
     assert abs(float(np.median(read_gaussian_prim(prim, 2.0).positions[:, 0] - avatar.positions[:, 0])) - 0.8) < 1e-5
 
 
-@pytest.mark.xfail(strict=True, reason="pipeline/shot.py _local_sh returns the skinned (rotated) SH of a skinned "
-                                       "prim with an identity transform; needs skin=False there (see the issue note)")
 def test_relit_sh_authored_in_bind_space(tmp_path):
     """Relighting is a per-Gaussian colour factor: in the bind-pose SH attribute, band 1 of the relit
     output stays parallel to band 1 of the input (the factor scales it); rotated SH would not be."""

@@ -31,12 +31,19 @@ def build_options(args):
     if args.no_tile_culling:
         dgsm_kw["use_tile_culling"] = False
     kw = process_kwargs(cfg)
-    for k in ("frames", "lights", "direct_fraction", "probe_points", "transfer_degree", "probe_supersample"):
+    for k in ("frames", "lights", "direct_fraction", "probe_points", "transfer_degree", "probe_supersample",
+              "precision", "sh_tolerance", "color_space"):
         v = getattr(args, k, None)
         if v is not None:
             kw[k] = v
+    if getattr(args, "aovs", None) is not None:
+        kw["aovs"] = tuple(a.strip() for a in args.aovs.split(",") if a.strip())
+    if isinstance(kw.get("aovs"), list):  # from a JSON config
+        kw["aovs"] = tuple(kw["aovs"])
     if args.lights_per_frame:
         kw["lights_per_frame"] = True
+    if getattr(args, "allow_missing", False):
+        kw["allow_missing"] = True
     return ProcessOptions(dgsm=replace(dgsm_config(cfg), **dgsm_kw), **role_paths(args), **kw)
 
 
@@ -46,6 +53,7 @@ def print_lights(lights) -> None:
     print(f"lights ({len(lights)}):")
     for lt in lights:
         where = (f"at ({lt.position[0]:.2f}, {lt.position[1]:.2f}, {lt.position[2]:.2f})" if lt.kind == "point"
+                 else "environment" if lt.kind == "dome"
                  else f"along ({lt.direction[0]:.2f}, {lt.direction[1]:.2f}, {lt.direction[2]:.2f})")
         score = "" if lt.score is None else f", score {lt.score:.3g}"
         print(f"  {lt.name}: {lt.kind} {where}, intensity {lt.intensity:.3g}{score} [{lt.source}]")

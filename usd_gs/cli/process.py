@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
 from usd_gs.cli._args import add_role_options, build_options, print_lights
+from usd_gs.errors import UserError
 
 
 def is_missing_demo(path) -> bool:
@@ -39,6 +41,11 @@ def cmd_process(args) -> int:
     check_usd_output_path(out)
     opts = build_options(args)
     quiet = args.quiet or args.json
+    for name in ("chunk_size", "workers"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise UserError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.clips_dir and os.path.exists(args.clips_dir) and not os.path.isdir(args.clips_dir):
+        raise UserError(f"--clips-dir {args.clips_dir}: is a file, not a folder")
     if args.chunk_size or args.workers or args.scheduler or args.clips_dir:
         from usd_gs.cli.farm import process_chunked
 
@@ -54,6 +61,8 @@ def cmd_process(args) -> int:
     d = summary.as_dict()
     print(role_table(summary.roles, proc.counts))
     print_lights(summary.lights)
+    for line in proc.capture_lines:
+        print(line)
     for w in summary.warnings:
         print(f"warning: {w}")
     print("timings (s): " + ", ".join(f"{k} {v:.2f}" for k, v in d["timings_s"].items()))
@@ -76,18 +85,33 @@ def register_process(sub, formatter):
         description="Estimate lights (or use the stage's UsdLux lights), build Deep Gaussian Shadow Maps from the "
                     "avatars and objects, attenuate the scene's colours in their shadows, fit an SH environment "
                     "probe at each avatar and relight it. Results go to a new layered stage that sublayers the "
-                    "input (the input is never written): primvars:usdgs:transmittance, shadowed and relit "
-                    "radiance:sphericalHarmonicsCoefficients, primvars:usdgs:lightScale, /UsdGs/Lights and "
-                    "/UsdGs/Probes, plus lat-long EXR probe textures in <output stem>_probes/.")
+                    "input (the input is never written): the shadowed and relit SH (half precision by default), "
+                    "/UsdGs/Lights and /UsdGs/Probes, plus lat-long EXR probe textures in <output stem>_probes/; "
+                    "diagnostic primvars with --aovs.")
     p.add_argument("stage", help="input USD stage")
     p.add_argument("-o", "--output", help="output stage (default: <stem>.lit.usdc beside the input)")
     p.add_argument("--frames", help="frames: A-B, A:B:STEP, N, or a comma list (default: the stage's range)")
-    p.add_argument("--lights", help="'auto' (stage lights, else estimate 2), 'stage' (UsdLux lights only) or N "
-                                    "(estimate N lights) (default: auto)")
+    p.add_argument("--lights", help="'auto' (the stage's UsdLux lights, else estimated from the capture: open "
+                                    "captures get a sun from their baked shadows plus a sky dome, closed ones 2 "
+                                    "plausible point lights), 'outdoor' / 'indoor' (estimate as an open / closed "
+                                    "capture), 'stage' (UsdLux lights only) or N (estimate N point lights) "
+                                    "(default: auto)")
     p.add_argument("--lights-per-frame", action="store_true", help="re-estimate lights at every frame")
     add_role_options(p)
+    p.add_argument("--aovs", metavar="NAMES",
+                   help="also write these diagnostic primvars, comma-separated: transmittance (primvars:usdgs:"
+                        "transmittance, what 'usdgs eval --matte stage' reads), lightScale (primvars:usdgs:lightScale, "
+                        "the relighting factor) (default: none; the shadowed and relit SH carry both)")
+    p.add_argument("--precision", choices=("half", "float"),
+                   help="precision of the SH written: half (radiance:sphericalHarmonicsCoefficientsh, the float "
+                        "attribute blocked in the output layer; default) or float")
+    p.add_argument("--sh-tolerance", type=float, metavar="C",
+                   help="hold an SH sample while no display colour moves by C or more (0..0.1; default 1/512, half "
+                        "an 8-bit step; 0 writes every change)")
     p.add_argument("--direct-fraction", type=float,
-                   help="share of a receiver's colour that is direct light and can be shadowed (default 1)")
+                   help="share of a receiver's colour that is direct light and can be shadowed (default: measured "
+                        "from the capture's own shadows for an estimated sun, from the intensities of authored "
+                        "DistantLights against the DomeLight, else 1)")
     p.add_argument("--probe-points", type=int, metavar="K",
                    help="relighting: parallax-corrected SH probes per avatar, blended by distance (default 8; "
                         "1 = the paper's single probe at the centroid)")
@@ -95,9 +119,13 @@ def register_process(sub, formatter):
                    help="relighting: draw the probe cube render at S x its size and filter it down (default 1; 2 "
                         "integrates small lamps over each texel: +1-2 dB on the known-light ground truth at the "
                         "bench size, about 10-15 ms more per relit prim and frame)")
+    p.add_argument("--color-space", choices=("srgb", "linear"),
+                   help="relighting: the Gaussians' colours are display-referred sRGB (default; light is summed and "
+                        "divided on decoded linear values) or linear already")
     p.add_argument("--transfer-degree", type=int, metavar="D",
                    help="relighting: SH degree of the lighting transfer (default 4; the written probe stays degree 3)")
-    p.add_argument("--atlas-size", type=int, help="DGSM octahedral atlas side in pixels (default 512)")
+    p.add_argument("--atlas-size", type=int, help="DGSM octahedral atlas side in pixels, a multiple of 8 in 8..16384 "
+                                                  "(default 512)")
     p.add_argument("--sampling", choices=("center", "stencil7", "mc"),
                    help="receiver footprint sampling (default center: sharper and 8x cheaper than the paper's mc "
                         "against the demo's mesh pseudo ground truth; see usdgs bench)")

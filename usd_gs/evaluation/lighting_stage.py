@@ -19,7 +19,7 @@ from usd_gs.errors import UserError
 from usd_gs.evaluation.lighting_metrics import METRICS, PAA_MIN_RANK, lighting_consistency, summarize
 from usd_gs.gaussians import GaussianSet
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
-from usd_gs.usd.output_author import LIGHT_SCALE
+from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS, SH_COEFFS_HALF
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.stage import open_stage
 
@@ -37,10 +37,15 @@ def _input_path(output_stage) -> str:
 
 
 def _processed_frames(output_stage, path: str) -> list[float]:
-    spec = output_stage.GetRootLayer().GetAttributeAtPath(f"{path}.{LIGHT_SCALE}")
-    if spec is None:
-        return []
-    return sorted(float(t) for t in output_stage.GetRootLayer().ListTimeSamplesForPath(spec.path))
+    """The frames at which the output relit prim ``path``: the time samples its output layer
+    holds for the relit SH (half or float) or the ``lightScale`` AOV."""
+    layer = output_stage.GetRootLayer()
+    frames: set[float] = set()
+    for name in (SH_COEFFS_HALF, SH_COEFFS, LIGHT_SCALE):
+        spec = layer.GetAttributeAtPath(f"{path}.{name}")
+        if spec is not None:
+            frames.update(float(t) for t in layer.ListTimeSamplesForPath(spec.path))
+    return sorted(frames)
 
 
 def lighting_consistency_for_stage(output_stage_path, frames=None, radius: float = 1.5, avatars=None,
@@ -49,7 +54,7 @@ def lighting_consistency_for_stage(output_stage_path, frames=None, radius: float
     """PAA-Y, APF-Y and NCM-ab for original and relit avatars of a processed stage.
 
     output_stage_path: a ``usdgs process`` output. frames: iterable of time codes, or None
-    for the frames the output relit (time samples of ``primvars:usdgs:lightScale``).
+    for the frames the output relit (time samples of its relit SH).
     radius: neighbourhood radius in metres (stage ``metersPerUnit`` applied). avatars: prim
     paths (default: every prim whose role is ``avatar`` and that the output relit).
 

@@ -110,8 +110,12 @@ class EvalContext:
 
     def stored_strength(self, receivers, frame: float) -> np.ndarray:
         """(N,) ``1 - primvars:usdgs:transmittance`` of the receivers at ``frame`` (0 where the
-        primvar has no value: never shadowed)."""
-
+        primvar has no value: never shadowed). ``UserError`` when no receiver has the primvar at
+        all: the stage was processed without ``--aovs transmittance``."""
+        if not any(self.stage.GetPrimAtPath(p).GetAttribute(TRANSMITTANCE).HasAuthoredValue()
+                   for p in receivers.ranges if self.stage.GetPrimAtPath(p).HasAttribute(TRANSMITTANCE)):
+            raise UserError(f"{self.label}: no receiver has '{TRANSMITTANCE}': --matte stage reads what the main "
+                            "job wrote; run 'usdgs process' with --aovs transmittance")
         out = np.zeros(receivers.gaussians.count)
         for p, (a, b) in receivers.ranges.items():
             attr = self.stage.GetPrimAtPath(p).GetAttribute(TRANSMITTANCE)

@@ -20,8 +20,8 @@ an attribute of the manifest, USD takes the manifest's default. A chunk leaves a
 attribute out exactly when it was unaffected at all of the chunk's frames (the single run
 then reads the unaffected value there too), so the manifest default of such an attribute is
 that unaffected value: all ones for ``primvars:usdgs:transmittance`` and the input's own
-prim-local SH for ``radiance:sphericalHarmonicsCoefficients`` (the pipeline authors SH in the
-prim's own frame). A moving prim (animated transform or positions) has the same unaffected
+prim-local SH for ``radiance:sphericalHarmonicsCoefficients`` or its half variant (the pipeline
+authors SH in the prim's own frame). A moving prim (animated transform or positions) has the same unaffected
 values at every frame as long as its Gaussian count (for the transmittance) and its input SH
 (for the SH) do not change over time; where they do, a chunk missing the attribute is an error. Inside a
 chunk, every value is authored from the chunk's first frame and held values are re-authored
@@ -38,7 +38,7 @@ import numpy as np
 
 from usd_gs.errors import UserError
 from usd_gs.farm.chunks import PREFIX, entry_files_ok, input_hash, read_sidecar
-from usd_gs.usd.output_author import SH_COEFFS, TRANSMITTANCE
+from usd_gs.usd.output_author import SH_COEFFS, SH_COEFFS_HALF, TRANSMITTANCE
 
 SH_DEGREE = "radiance:sphericalHarmonicsDegree"
 
@@ -53,11 +53,27 @@ class AssembleSummary:
     filled: int  # attributes given a manifest default (missing in some chunk)
 
 
-def collect_chunks(folder) -> list[dict]:
+def _layer_frames(path: Path) -> str:
+    """``frames A-B`` of a chunk layer (its start and end time codes), or its name's part."""
+    from pxr import Sdf
+
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+    except Exception:  # noqa: BLE001 - a broken layer: fall back to the name
+        layer = None
+    if layer is not None and layer.HasStartTimeCode() and layer.HasEndTimeCode():
+        a, b = layer.startTimeCode, layer.endTimeCode
+        return f"frames {a:g}" if a == b else f"frames {a:g}-{b:g}"
+    return "frames " + path.stem[len(PREFIX):].replace("_", "-")
+
+
+def collect_chunks(folder, allow_gaps: bool = False) -> list[dict]:
     """Finished chunk entries of ``folder`` in frame order (each entry gets ``path``).
 
     Raises ``UserError`` when there are none, when a chunk's files do not match its entry,
-    when chunks of different options or inputs are mixed, or when frame ranges overlap."""
+    when chunks of different options or inputs are mixed, when frame ranges overlap, or,
+    unless ``allow_gaps``, when a chunk layer has no finished entry (its frames would be
+    absent from the stitched stage)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise UserError(f"{folder}: no such chunk folder")
@@ -73,6 +89,14 @@ def collect_chunks(folder) -> list[dict]:
         entries.append(e)
     if not entries:
         raise UserError(f"{folder}: holds no finished chunk ({PREFIX}*.json)")
+    if not allow_gaps:
+        listed = {e["layer"] for e in entries}
+        orphans = sorted(p for p in folder.glob(f"{PREFIX}*.usdc") if p.name not in listed)
+        if orphans:
+            what = ", ".join(f"{p.name} ({_layer_frames(p)})" for p in orphans[:4])
+            more = f" and {len(orphans) - 4} more" if len(orphans) > 4 else ""
+            raise UserError(f"{folder}: chunk {what}{more} has no finished manifest entry ({PREFIX}*.json), so "
+                            "its frames would be missing from the output; re-run that chunk (or pass --allow-gaps)")
     groups = {(e["input"], e["input_hash"], e["options_hash"]) for e in entries}
     if len(groups) > 1:
         raise UserError(f"{folder}: chunks of {len(groups)} different runs (input, input bytes or options differ) "
@@ -110,19 +134,21 @@ def _unaffected_value(stage, attr_path, missing_in: str):
     prim = stage.GetPrimAtPath(attr_path.GetPrimPath())
     name = attr_path.name
     why = f"{attr_path} has no samples in chunk {missing_in}"
-    if not prim or name not in (TRANSMITTANCE, SH_COEFFS):
+    if not prim or name not in (TRANSMITTANCE, SH_COEFFS, SH_COEFFS_HALF):
         raise UserError(f"{why} and no unaffected value is defined for it; re-run with a larger --chunk-size")
     info = describe_gaussian_prim(prim, Usd.TimeCode.EarliestTime())
     varying = [a for a in ("positions", "positionsh", SH_COEFFS, SH_COEFFS + "h")
                if prim.HasAttribute(a) and prim.GetAttribute(a).GetNumTimeSamples() > 1]
     counts = {len(prim.GetAttribute(a).Get(t) or []) for a in varying if a.startswith("positions")
               for t in prim.GetAttribute(a).GetTimeSamples()}
-    if counts - {info.count} or (name == SH_COEFFS and any(a.startswith(SH_COEFFS) for a in varying)):
+    if counts - {info.count} or (name != TRANSMITTANCE and any(a.startswith(SH_COEFFS) for a in varying)):
         raise UserError(f"{why}, and the prim's Gaussian count or input SH change over time, so its unaffected "
                         "value differs per frame: re-run with a larger --chunk-size or one chunk for this shot")
     if name == TRANSMITTANCE:
         return Vt.FloatArray.FromNumpy(np.ones(info.count, np.float32))
     g = read_gaussian_prim(prim, Usd.TimeCode.EarliestTime(), world=False)
+    if name == SH_COEFFS_HALF:
+        return Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(g.sh.astype(np.float16).reshape(-1, 3)))
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(g.sh.astype(np.float32).reshape(-1, 3)))
 
 
@@ -186,16 +212,17 @@ def _manifest(man_path: Path, layers, names, input_stage) -> int:
     return filled
 
 
-def assemble(folder, output, entries: list[dict] | None = None) -> AssembleSummary:
+def assemble(folder, output, entries: list[dict] | None = None, allow_gaps: bool = False) -> AssembleSummary:
     """Stitch the finished chunks of ``folder`` (or the given ``entries``, frame order) into
-    ``output``; see the module docstring. Checks that the input has not changed since."""
+    ``output``; see the module docstring. Checks that the input has not changed since, and
+    (:func:`collect_chunks`) that no chunk layer lacks its entry unless ``allow_gaps``."""
     from pxr import Sdf, Usd, Vt
 
     from usd_gs.usd.gaussian_prim import save_stage_atomic
     from usd_gs.usd.output_layer import OutputLayer
     from usd_gs.usd.stage import check_usd_output_path, open_stage
 
-    entries = entries if entries is not None else collect_chunks(folder)
+    entries = entries if entries is not None else collect_chunks(folder, allow_gaps=allow_gaps)
     out = Path(os.path.abspath(output))
     check_usd_output_path(str(out))
     input_path = entries[0]["input"]

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, fields
 from usd_gs.errors import UserError
 from usd_gs.relight.probe import PROBE_SUPERSAMPLE
 from usd_gs.shadows.dgsm import DGSMConfig
+from usd_gs.usd.output_author import AOVS, PRECISIONS, SH_TOLERANCE
 
 
 @dataclass
@@ -22,12 +23,12 @@ class ProcessOptions:
     """Options of ``usdgs process`` (see ``usdgs process --help`` for each)."""
 
     frames: str | None = None
-    lights: str = "auto"  # 'auto' | 'stage' | a number of lights to estimate
+    lights: str = "auto"  # 'auto' | 'indoor' | 'outdoor' | 'stage' | a number of lights to estimate
     lights_per_frame: bool = False
     scene_paths: tuple[str, ...] = ()
     avatar_paths: tuple[str, ...] = ()
     object_paths: tuple[str, ...] = ()
-    direct_fraction: float = 1.0
+    direct_fraction: float | None = None  # None: measured from the capture's lights (capture_lights.direct_fraction)
     default_light_count: int = 2
     dgsm: DGSMConfig = field(default_factory=DGSMConfig)
     contact_bias: float = 0.03
@@ -42,12 +43,22 @@ class ProcessOptions:
     relight_q: float = 1.0
     relight_gamma: float = 1.0
     relight_t_max: float = 8.0
+    color_space: str = "srgb"  # of the Gaussians' colours for relighting: 'srgb' (display-referred) | 'linear'
+    self_shadow: bool = True  # a relit prim's own Gaussians shadow its direct light (DGSM, with the bias below)
+    self_shadow_bias: float = 0.05  # metres toward the light for a relit prim's own shadow lookups
+    aovs: tuple[str, ...] = ()  # diagnostic primvars to write too: names of usd_gs.usd.output_author.AOVS
+    precision: str = "half"  # of the SH written: 'half' | 'float'
+    sh_tolerance: float = SH_TOLERANCE  # display-colour change below which an SH sample is held
+    allow_missing: bool = False  # open an input whose sublayers/references are partly missing
 
     def check(self) -> ProcessOptions:
-        if not 0.0 <= self.direct_fraction <= 1.0:
+        if self.direct_fraction is not None and not 0.0 <= self.direct_fraction <= 1.0:
             raise UserError(f"--direct-fraction must be in [0, 1], got {self.direct_fraction}")
         if self.roi not in ("cone", "box", "all"):
             raise UserError(f"roi must be 'cone', 'box' or 'all', got '{self.roi}'")
+        from usd_gs.resources import check_limit
+
+        check_limit("probe_size", self.probe_size, "probe_size")
         if self.probe_size < 4 or self.probe_degree < 0 or self.probe_degree > 3:
             raise UserError("probe size must be >= 4 and probe degree 0..3")
         if not 0 <= self.transfer_degree <= 8:
@@ -56,13 +67,26 @@ class ProcessOptions:
             raise UserError(f"probe points must be 1..64, got {self.probe_points}")
         if not 1 <= self.probe_supersample <= 4:
             raise UserError(f"probe supersampling must be 1..4, got {self.probe_supersample}")
-        if self.lights not in ("auto", "stage"):
+        if self.lights not in ("auto", "stage", "indoor", "outdoor"):
             try:
                 k = int(self.lights)
             except ValueError:
-                raise UserError(f"--lights must be 'auto', 'stage' or a number, got '{self.lights}'") from None
+                raise UserError(f"--lights must be 'auto', 'indoor', 'outdoor', 'stage' or a number, "
+                                f"got '{self.lights}'") from None
             if not 1 <= k <= 16:
                 raise UserError(f"--lights {k}: estimate between 1 and 16 lights")
+        unknown = [a for a in self.aovs if a not in AOVS]
+        if isinstance(self.aovs, str) or unknown:
+            raise UserError(f"--aovs: unknown AOV '{unknown[0] if unknown else self.aovs}' "
+                            f"(choose from {', '.join(AOVS)})")
+        if self.precision not in PRECISIONS:
+            raise UserError(f"--precision must be 'half' or 'float', got '{self.precision}'")
+        if not 0.0 <= self.sh_tolerance <= 0.1:
+            raise UserError(f"sh_tolerance must be in [0, 0.1] (display colour), got {self.sh_tolerance}")
+        if self.color_space not in ("srgb", "linear"):
+            raise UserError(f"--color-space must be 'srgb' or 'linear', got '{self.color_space}'")
+        if not self.self_shadow_bias >= 0.0:
+            raise UserError(f"self_shadow_bias must be >= 0 metres, got {self.self_shadow_bias}")
         self.dgsm.validate()
         return self
 
@@ -73,7 +97,7 @@ DGSM_KEYS = tuple(f.name for f in fields(DGSMConfig)
 #: ProcessOptions fields a config file may set (prim roles come from the stage or the command line).
 PROCESS_KEYS = tuple(f.name for f in fields(ProcessOptions)
                      if f.name not in ("scene_paths", "avatar_paths", "object_paths", "dgsm", "default_light_count",
-                                       "probe_texture"))
+                                       "probe_texture", "allow_missing"))
 
 
 def load_config(path: str) -> dict:
@@ -87,12 +111,57 @@ def load_config(path: str) -> dict:
         raise UserError(f"--config {path}: no such file") from None
     except json.JSONDecodeError as exc:
         raise UserError(f"--config {path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"--config {path}: cannot be read ({getattr(exc, 'strerror', None) or exc})") from None
     if not isinstance(data, dict):
         raise UserError(f"--config {path}: must hold a JSON object")
     unknown = set(data) - set(DGSM_KEYS) - set(PROCESS_KEYS)
     if unknown:
         raise UserError(f"--config {path}: unknown option(s) {', '.join(sorted(unknown))}")
+    for key, value in data.items():
+        _check_type(path, key, value)
     return data
+
+
+def _field_types() -> dict:
+    """option name -> its annotation text (``'int'``, ``'float | None'``, ``'tuple[str, ...]'``)."""
+    out = {f.name: str(f.type) for f in fields(DGSMConfig)}
+    out.update({f.name: str(f.type) for f in fields(ProcessOptions)})
+    return out
+
+
+def _check_type(path: str, key: str, value) -> None:
+    """``UserError`` naming the file and key when a config value has the wrong JSON type for its
+    option (an int where an integer is expected, a finite number for a float, ...)."""
+    import math
+
+    ann = _field_types().get(key, "")
+    if key == "lights" and isinstance(value, int) and not isinstance(value, bool):
+        return  # a number of lights to estimate
+    kinds = [a.strip() for a in ann.split("|")]
+    if value is None and "None" in kinds:
+        return
+    ok = True
+    for kind in kinds:
+        if kind == "None":
+            continue
+        if kind == "int":
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif kind == "float":
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        elif kind == "bool":
+            ok = isinstance(value, bool)
+        elif kind == "str":
+            ok = isinstance(value, str)
+        elif kind.startswith("tuple"):
+            ok = isinstance(value, list)
+        else:
+            return  # a type this check does not know: the option's own validation decides
+        if ok:
+            return
+    want = " or ".join({"int": "an integer", "float": "a finite number", "bool": "true or false", "str": "a string",
+                        "None": "null"}.get(k, "a list") for k in kinds)
+    raise UserError(f"--config {path}: '{key}' must be {want}, got {json.dumps(value)[:60]}")
 
 
 def dgsm_config(cfg: dict) -> DGSMConfig:

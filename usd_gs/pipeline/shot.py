@@ -34,12 +34,13 @@ from pxr import Usd, UsdGeom
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
+from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
 from usd_gs.pipeline import jit_warmup
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.avatar import relight_factors
-from usd_gs.relight.light_estimation import estimate_lights
 from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.resources import check_memory
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
 from usd_gs.shadows.shot import (
@@ -54,12 +55,13 @@ from usd_gs.shadows.shot import (
     toward_mask,
 )
 from usd_gs.shadows.static_scene import StaticSceneAtlas
-from usd_gs.usd.frames import parse_frames
+from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
-from usd_gs.usd.lux import ShotLight, read_stage_lights, write_estimated_lights
+from usd_gs.usd.lux import ShotLight, read_stage_lights
 from usd_gs.usd.output_author import OutputAuthor
 from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.usd.roles import resolve_roles
+from usd_gs.usd.skel import has_skel_binding
 from usd_gs.usd.stage import open_stage
 
 __all__ = ["ProcessOptions", "ProcessSummary", "ShotProcessor", "default_output_path"]
@@ -85,6 +87,19 @@ def _safe_name(path: str) -> str:
     return path.rstrip("/").rsplit("/", 1)[-1]
 
 
+def probe_names(paths) -> dict[str, str]:
+    """Probe prim (and texture) name of each relit prim path: its leaf name when no other path
+    of ``paths`` has the same leaf (the usual case, stable across runs), else the leaf name
+    and the first 8 hex digits of the SHA-1 of the whole path (``Biker_1a2b3c4d``): unique
+    and stable, whatever order the prims come in."""
+    import hashlib
+
+    paths = list(dict.fromkeys(paths))
+    leaves = [_safe_name(p) for p in paths]
+    return {p: leaf if leaves.count(leaf) == 1 else f"{leaf}_{hashlib.sha1(p.encode()).hexdigest()[:8]}"
+            for p, leaf in zip(paths, leaves, strict=True)}
+
+
 @dataclass
 class FrameShadows:
     """One frame's shadow pass: the moving receivers (``drecv``), the static receivers some light
@@ -95,6 +110,7 @@ class FrameShadows:
     touched: np.ndarray
     t_touched: np.ndarray
     t_dyn: np.ndarray
+    t_dyn_lights: list | None = None  # per shadow light: (N_moving,) transmittance (relighting's visibility)
 
 
 @dataclass
@@ -137,11 +153,13 @@ class ShotProcessor:
         self.affected: dict[str, int] = {}
         self.probe_files = 0
         self.lights_used: list[ShotLight] = []
+        self.capture = None  # usd_gs.pipeline.capture_lights.CaptureLights of an estimate
+        self.capture_lines: list[str] = []  # what the estimate found (printed by usdgs process)
 
     # ------------------------------------------------------------------ set-up
     def _open(self):
         t0 = time.perf_counter()
-        self.stage = open_stage(self.input_path)
+        self.stage = open_stage(self.input_path, allow_missing=self.opts.allow_missing or None)
         prims = find_gaussian_prims(self.stage)
         if not prims:
             raise UserError(f"{self.input_path}: no ParticleField3DGaussianSplat prims to process")
@@ -152,6 +170,10 @@ class ShotProcessor:
                                              self.opts.object_paths)
         self.warnings += warnings
         self.frames = parse_frames(self.opts.frames, self.stage.GetStartTimeCode(), self.stage.GetEndTimeCode())
+        outside = outside_warning(self.frames, self.stage.GetStartTimeCode(), self.stage.GetEndTimeCode(),
+                                  self.input_path)
+        if outside and self.anchor_frame is None:  # a chunk task is part of a run that warned already
+            self.warnings.append(outside)
         up = UsdGeom.GetStageUpAxis(self.stage)
         self.dgsm = replace(self.opts.dgsm, up_axis="Z" if up == UsdGeom.Tokens.z else "Y")
         self._centre_cfg = replace(self.dgsm, sampling="center")
@@ -169,20 +191,16 @@ class ShotProcessor:
 
     # ------------------------------------------------------------------ lights
     def _estimate(self, frames: list[float], k: int) -> list[ShotLight]:
-        scene = [g for r in self.roles if r.role == "scene" and not r.per_frame for g in [self.static[r.path]]]
-        if not scene:
-            self.warnings.append("no static scene prim: no lights can be estimated")
-            return []
-        movers = [r.path for r in self.roles if r.role == "avatar"] or [r.path for r in self.roles if r.per_frame]
-        picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
-        cents = [alpha_weighted_centroid(self._read(p, f)) for p in movers for f in picks]
-        if not cents:
-            cents = [alpha_weighted_centroid(GaussianSet.concatenate(scene))]
-        centroid = np.mean(cents, axis=0)
-        est = estimate_lights(GaussianSet.concatenate(scene, label="scene"), centroid, k=k,
-                              meters_per_unit=self.mpu)
-        return [ShotLight(f"Light_{i}", "point", np.asarray(e.position, np.float64), color=np.asarray(e.color),
-                          intensity=float(e.intensity), score=float(e.score)) for i, e in enumerate(est)]
+        """Lights estimated from the capture (``usd_gs.pipeline.capture_lights``: open or closed,
+        sun and sky or plausible point lights); what it found goes to ``capture_lines``."""
+        from usd_gs.pipeline.capture_lights import estimate_for_shot
+
+        self.capture = estimate_for_shot(self, frames, k)
+        self.capture_lines = list(self.capture.lines)
+        if not self.capture.lights:
+            self.warnings.append("no lights could be estimated" if not self.capture.lines
+                                 else self.capture.lines[-1])
+        return self.capture.lights
 
     def _lights(self, frame: float) -> list[ShotLight]:
         if self.preset_lights is not None:
@@ -190,18 +208,20 @@ class ShotProcessor:
         t0 = time.perf_counter()
         mode = self.opts.lights
         if mode in ("auto", "stage"):
-            lights, warns = read_stage_lights(self.stage, Usd.TimeCode(frame))
+            lights, warns = read_stage_lights(self.stage, Usd.TimeCode(frame), include_domes=True)
             for w in warns:
                 if w not in self.warnings:
                     self.warnings.append(w)
-            if lights or mode == "stage":
+            domes = [lt for lt in lights if lt.kind == "dome"]
+            if len(lights) > len(domes) or mode == "stage":
                 if not lights:
                     raise UserError(f"{self.input_path}: --lights stage but the stage has no usable UsdLux light")
                 self.clock.add("lights", t0)
                 return lights
             k = self.opts.default_light_count
         else:
-            k = int(mode)
+            k = self.opts.default_light_count if mode in ("indoor", "outdoor") else int(mode)
+            domes = []
         if self.opts.lights_per_frame:
             lights = self._estimate([frame], k)
         else:
@@ -209,7 +229,8 @@ class ShotProcessor:
                 self._shot_lights = self._estimate(self.frames, k)
             lights = self._shot_lights
         self.clock.add("lights", t0)
-        return lights
+        # a dome the stage authors is the user's: it replaces an estimated sky
+        return [lt for lt in lights if not (domes and lt.kind == "dome")] + domes
 
     def shot_lights(self) -> list[ShotLight] | None:
         """The shot-level step of a chunked run: opens the input and returns the lights estimated
@@ -249,9 +270,9 @@ class ShotProcessor:
         self.clock.add("read", t)
         lights = self._lights(frame)
         self.lights_used = lights
-        shadows = self._shadow_pass(sets, lights)
+        shadows = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"])
         t = time.perf_counter()
-        relit = self._relight_pass(dyn, sets, frame, author, probe_dir)
+        relit = self._relight_pass(dyn, sets, frame, author, probe_dir, lights, shadows)
         t = self.clock.add("relight", t)
         self._author_pass(frame, author, sets, shadows, relit)
         self.clock.add("write", t)
@@ -271,6 +292,7 @@ class ShotProcessor:
         dspheres = {p: bound[p] if p in bound else occluder_sphere(sets[p], cfg.k_sigma)
                     for p in self._dyn_recv_paths if sets[p].count} if packed else {}
         movers = _MovingCasters(packed, bound, dspheres)
+        self._self_vis = {}  # this frame's self-shadowing of relit prims: (prim, id(light)) -> (N_moving,)
         s_light, d_light, touched = [], [], []
         for light in lights:
             ts, td, hits = self._moving_caster_shadows(light, sets, drecv, movers)
@@ -287,7 +309,7 @@ class ShotProcessor:
         t_dyn = (combine_lights(d_light, light_shares(lights, drecv.gaussians.positions)) if lights
                  else np.ones(drecv.gaussians.count, np.float32))
         clk.add("shadows", t)
-        return FrameShadows(drecv, u, t_static_u, t_dyn)
+        return FrameShadows(drecv, u, t_static_u, t_dyn, d_light)
 
     def _moving_caster_shadows(self, light, sets: dict, drecv: Receivers, movers: _MovingCasters):
         """One light: every moving caster's DGSM sampled on the static receivers in its beam and
@@ -311,10 +333,17 @@ class ShotProcessor:
             if dhit:
                 cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
                 part_d = receiver_points(sets[q], drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
-            (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, movers.packed[q])
+            part_o = self._self_points(q, sets[q], drecv, light)
+            (idx, val), (idx_d, val_d), (idx_o, val_o) = shared_transmittance(
+                sets[q], [part_s, part_d, part_o], light, cfg, movers.packed[q])
             ts[idx] *= val
             hits.append(idx[val < 1.0])
             td[idx_d] *= val_d
+            if idx_o.size:
+                # self-shadowing shades only the relighting's direct term (the transmittance
+                # primvar and the attenuation of unrelit prims keep other prims' shadows only)
+                own = self._self_vis.setdefault((q, id(light)), np.ones(drecv.gaussians.count))
+                own[idx_o] *= val_o
         return ts, td, hits
 
     def _scene_shadows_on_moving(self, light, sets: dict, drecv: Receivers, td: np.ndarray) -> None:
@@ -347,15 +376,126 @@ class ShotProcessor:
                                             bias=self.opts.contact_bias / self.mpu, candidates=np.arange(a, b))
             td[idx] *= val
 
-    def _relight_pass(self, dyn: dict, sets: dict, frame: float, author, probe_dir: Path) -> dict:
-        """``{path: (N, 3) s(n)}`` for every relit avatar and object (probe + transfer)."""
+    def _self_points(self, q: str, g, drecv: Receivers, light):
+        """:func:`receiver_points` of a relit prim's own Gaussians for its own DGSM (self-shadowing,
+        moved ``self_shadow_bias`` toward the light), or None (not relit, not a receiver, or off)."""
+        if not self.opts.self_shadow or q not in drecv.ranges or q not in self._relit_paths:
+            return None
+        a, b = drecv.ranges[q]
+        return receiver_points(g, drecv, light, self._centre_cfg, roi="all", bias=self.opts.self_shadow_bias / self.mpu,
+                               candidates=np.arange(a, b))
+
+    @property
+    def _relit_paths(self) -> set:
+        return {r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")}
+
+    def _relight_pass(self, dyn: dict, sets: dict, frame: float, author, probe_dir: Path, lights=(),
+                      shadows: FrameShadows | None = None) -> dict:
+        """``{path: (N, 3) colour factor}`` for every relit avatar and object (``usd_gs.relight.avatar``:
+        direct lights with their DGSM visibility, probe, transfer; gamma included)."""
         relit = {}
         for r in self.roles:
             if r.per_frame and r.relight and r.role in ("avatar", "object"):
                 everything, spans = self._shot_buffer(dyn)
                 relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author,
-                                              probe_dir)
+                                              probe_dir, lights, shadows, spans)
         return relit
+
+    def _visibility(self, path: str, lights, shadows: FrameShadows | None) -> list:
+        """Per light, the (N,) visibility of prim ``path``'s Gaussians (None: 1; domes None)."""
+        out = []
+        k = 0
+        for lt in lights:
+            if lt.kind == "dome":
+                out.append(None)
+                continue
+            v = None
+            if shadows is not None and shadows.t_dyn_lights is not None and path in shadows.drecv.ranges:
+                a, b = shadows.drecv.ranges[path]
+                v = np.asarray(shadows.t_dyn_lights[k][a:b], np.float64)
+                own = self._self_vis.get((path, id(lt)))
+                if own is not None:
+                    v = v * own[a:b]
+            out.append(v)
+            k += 1
+        return out
+
+    def _emitter_mask(self, lights, everything, spans) -> np.ndarray:
+        """(everything.count,) bool, once per shot and light set: False for the static scene
+        Gaussians that make up a modelled light (within ``emitter_radius``, or 3 x its radius, of a
+        point, sphere, rect or disk light's centre; :meth:`_emitter_keep`'s rule), so that the probe
+        render does not count them again."""
+        key = ("probe-emitters", tuple((lt.kind, tuple(np.round(lt.position, 6))) for lt in lights
+                                       if lt.kind == "point"), everything.count)
+        if key not in self._scene_packs:
+            keep = np.ones(everything.count, bool)
+            roles = {r.path: r.role for r in self.roles}
+            scene = [p for p in self.static if roles.get(p) == "scene"]
+            for lt in lights:
+                if lt.kind != "point":
+                    continue
+                r = max(self.opts.emitter_radius / self.mpu, 3.0 * lt.radius,
+                        0.5 * float(np.hypot(lt.width, lt.height)))
+                for p in scene:
+                    a, b = spans[p]
+                    d2 = np.sum((everything.positions[a:b].astype(np.float64) - lt.position) ** 2, axis=1)
+                    keep[a:b] &= d2 > r * r
+            self._scene_packs[key] = keep
+        return self._scene_packs[key]
+
+    def _appearance(self, path: str, frame: float, n: int):
+        """The prim's albedo or RGCA ZH fields (``usd_gs.relight.appearance``) at ``frame``, or None;
+        the attribute check is cached per prim."""
+        from usd_gs.relight.appearance import read_appearance
+
+        key = ("appearance", path)
+        if self._scene_packs.get(key) is False:
+            return None
+        app = read_appearance(self.prims[path], Usd.TimeCode(frame), n)
+        if app is None:
+            self._scene_packs[key] = False
+        return app
+
+    def _calibrated(self, lights, everything, spans, centre) -> list:
+        """The lights for the relighting: estimated point lights get the radiant intensity that their
+        emitter Gaussians show at ``centre`` (a render of those Gaussians alone: ``sum`` of linear
+        radiance x solid angle, times the squared distance), once per shot and light; the stage's
+        lights are used as authored."""
+        from numba_kernels.cubemap_dirs import cube_face_solid_angles
+        from usd_gs.relight.avatar import linear_faces
+        from usd_gs.relight.probe import render_probe_faces
+
+        out = []
+        for lt in lights:
+            if lt.source != "estimated" or lt.kind != "point":
+                out.append(lt)
+                continue
+            key = ("calibrated", tuple(np.round(lt.position, 6)))
+            if key not in self._scene_packs:
+                mine = ~self._emitter_mask([lt], everything, spans)
+                size = self.opts.probe_size
+                rgb, alpha, _ = render_probe_faces(everything, centre, size, mine)
+                lin = linear_faces(rgb, alpha, self.opts.color_space)
+                e = (lin * cube_face_solid_angles(size)[..., None]).reshape(-1, 3).sum(axis=0)
+                r2 = float(np.sum((np.asarray(lt.position, np.float64) - centre) ** 2))
+                self._scene_packs[key] = e * r2
+            out.append(replace(lt, color=self._scene_packs[key], intensity=1.0, radius=0.0, shape="point"))
+        return out
+
+    def _direct_fraction(self) -> float:
+        """The share of a lit receiver's light that the shadowing lights bring, when
+        ``--direct-fraction`` is not given (``usd_gs.pipeline.capture_lights.direct_fraction``)."""
+        from usd_gs.pipeline.capture_lights import direct_fraction
+
+        return direct_fraction(self, self.lights_used)
+
+    def _write_lights(self, stage, lights, probe_dir: Path) -> None:
+        """The estimated lights under /UsdGs/Lights (``usd_gs.pipeline.capture_lights.write_lights``;
+        an estimated sky's texture goes into the probe folder)."""
+        from usd_gs.pipeline.capture_lights import write_lights
+
+        self.probe_files += write_lights(self, stage, lights, probe_dir / "sky.exr",
+                                         f"./{self.final_probe_dir.name}/sky.exr")
 
     def _author_pass(self, frame: float, author, sets: dict, shadows: FrameShadows, relit: dict) -> None:
         """Static prims only where shadowed now or before; dynamic ones always. Results are
@@ -364,8 +504,7 @@ class ShotProcessor:
         srecv, drecv = self._static_recv, shadows.drecv
         u, t_static_u, t_dyn = shadows.touched, shadows.t_touched, shadows.t_dyn
         affected = []
-        f = self.opts.direct_fraction
-        gamma = self.opts.relight_gamma
+        f = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
         owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in self._static_recv_paths]), u, side="right")
         for k, p in enumerate(self._static_recv_paths):
             sel = owner == k
@@ -382,31 +521,40 @@ class ShotProcessor:
             a, b = drecv.ranges[p]
             tp = t_dyn[a:b]
             sh_in = self._local_sh(p, frame, sets[p])
-            base_sh = scale_sh(sh_in, gamma * relit[p]) if p in relit else sh_in
-            sh_out = scale_sh(base_sh, attenuation_factor(tp, f)) if (tp < 1).any() else base_sh
+            if p in relit:  # the factor holds gamma and the prim's shadows (its lights' visibility)
+                sh_out = scale_sh(sh_in, relit[p])
+            else:
+                sh_out = scale_sh(sh_in, attenuation_factor(tp, f)) if (tp < 1).any() else sh_in
             if author.receiver(p, frame, tp, sh_out, sh_in) or p in relit:
                 affected.append(p)
         for p, scale in relit.items():
             author.light_scale(p, frame, scale)
             if p not in drecv.ranges:
                 sh_in = self._local_sh(p, frame, sets[p])
-                author.receiver(p, frame, np.ones(sets[p].count, np.float32), scale_sh(sh_in, gamma * scale), sh_in)
+                author.receiver(p, frame, np.ones(sets[p].count, np.float32), scale_sh(sh_in, scale), sh_in)
         for p in affected:
             self.affected[p] = self.affected.get(p, 0) + 1
 
     def _local_sh(self, path: str, frame: float, g):
         """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at
         ``frame``: ``g.sh`` (world space) when the prim's world transform has no rotation, else
-        read unrotated (once per shot for static prims)."""
+        read unrotated (once per shot for static prims). A skinned prim's attribute holds the bind
+        pose: its bind-pose SH (once per shot; the results are per-Gaussian colour factors, which
+        commute with the skinning's band rotations)."""
+        prim = self.prims[path]
         static = path in self.static
-        if static and path in self._local_sh_cache:
+        skinned = has_skel_binding(prim)
+        if (static or skinned) and path in self._local_sh_cache:
             return self._local_sh_cache[path]
         tc = Usd.TimeCode.EarliestTime() if static else Usd.TimeCode(frame)
-        m = np.array(UsdGeom.Xformable(self.prims[path]).ComputeLocalToWorldTransform(tc).ExtractRotationMatrix())
-        s = abs(np.linalg.det(m)) ** (1.0 / 3.0)
-        sh = g.sh if s > 0 and np.allclose(m / s, np.eye(3), atol=1e-9) else read_gaussian_prim(
-            self.prims[path], tc, world=False).sh
-        if static:
+        if skinned:
+            sh = read_gaussian_prim(prim, tc, world=False, skin=False).sh
+        else:
+            m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc).ExtractRotationMatrix())
+            s = abs(np.linalg.det(m)) ** (1.0 / 3.0)
+            sh = g.sh if s > 0 and np.allclose(m / s, np.eye(3), atol=1e-9) else read_gaussian_prim(
+                prim, tc, world=False).sh
+        if static or skinned:
             self._local_sh_cache[path] = sh
         return sh
 
@@ -458,11 +606,15 @@ class ShotProcessor:
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 
-    def _relight(self, path, g, everything, span, frame, author, probe_dir):
+    def _relight(self, path, g, everything, span, frame, author, probe_dir, lights=(), shadows=None, spans=None):
         jit_warmup.wait_for("relight")  # cold cache: the warm-up process compiles these kernels
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)
+        vis = self._visibility(path, lights, shadows)  # (before the calibrated copies: keyed by the shadow lights)
+        if lights and spans is not None:
+            mask &= self._emitter_mask(lights, everything, spans)  # modelled lights: not again in the probe
+            lights = self._calibrated(lights, everything, spans, centre)
         mask[span[0]:span[1]] = False
         local = self._local_normals.get(path)
         first = None
@@ -482,9 +634,12 @@ class ShotProcessor:
             self._probe_blends[path] = blend
         normals = local_normals_to_world(g.orientations, local)
         t = self.clock.add("transfer", t)
-        scale, probe = relight_factors(g, everything, mask, centre, normals, blend, self.opts)
+        scale, probe = relight_factors(g, everything, mask, centre, normals, blend, self.opts, lights=lights,
+                                       visibility=vis,
+                                       appearance=self._appearance(path, frame, g.count))
         t = self.clock.add("probe", t)
-        name = _safe_name(path)
+        relit = [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
+        name = probe_names(relit)[path]
         tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
         h, w = self.opts.probe_texture
         probe.write_latlong_exr(tex, h, w)
@@ -504,19 +659,60 @@ class ShotProcessor:
         finally:
             jit_warmup.stop(warmup)
 
+    def _commit_probes(self, probe_dir: Path) -> None:
+        """Put this run's probe folder in place of the previous one with two renames (the old one is
+        moved aside first and removed after), so no moment leaves a half-deleted folder."""
+        final = self.final_probe_dir
+        old = final.with_name(f".{final.name}.old.{temp_tag()}")
+        if final.exists():
+            os.replace(final, old)
+        try:
+            if self.probe_files:
+                os.replace(probe_dir, final)
+        finally:
+            if old.exists():
+                shutil.rmtree(old, ignore_errors=True)
+
+    def check_output(self) -> None:
+        """``UserError`` before any work when the output cannot be written: an existing directory
+        at the output path or at its probe folder's path, or a folder that is missing or read-only."""
+        out_path = Path(self.output_path)
+        if out_path.is_dir():
+            raise UserError(f"{out_path}: is an existing directory; -o must name the output stage file")
+        probes = out_path.with_name(out_path.stem + "_probes")
+        if probes.exists() and not probes.is_dir():
+            raise UserError(f"{probes}: exists and is not a folder; the probe textures go there")
+        check_writable_folder(out_path.parent, str(out_path))
+
+    def memory_estimate(self) -> float:
+        """Bytes of the run's largest working set, estimated before it starts: one DGSM (the
+        dense per-pixel index of the atlas and its occupied depth bins, at most one pixel per
+        receiver sample) plus the shot's Gaussians (every prim, about 250 bytes each with SH)."""
+        cfg = self.dgsm
+        w2 = float(cfg.atlas_size) ** 2
+        per_receiver = {"mc": cfg.n_samples, "stencil7": 7}.get(cfg.sampling, 1)
+        n = float(sum(self.counts.values()))
+        bins = min(w2, n * per_receiver) * cfg.K * 12.0
+        return w2 * 16.0 + bins + n * 250.0
+
     def _run(self, t_start: float, progress: bool) -> ProcessSummary:
+        self.check_output()
         self._open()
+        check_memory(self.memory_estimate(), f"{self.input_path}: this run (atlas {self.dgsm.atlas_size}, K "
+                     f"{self.dgsm.K}, {sum(self.counts.values()):,} Gaussians)", "--atlas-size (or K in --config)")
         self._read_static()
         self._shot_setup()
         out_path = Path(self.output_path)
         self.final_probe_dir = out_path.with_name(out_path.stem + "_probes")
-        probe_dir = out_path.with_name(f".{out_path.stem}_probes.tmp{os.getpid()}")
+        remove_stale_temps(out_path.parent)  # what killed runs left (their pid no longer runs)
+        probe_dir = out_path.with_name(f".{out_path.stem}_probes.{temp_tag()}")
         if probe_dir.exists():
             shutil.rmtree(probe_dir)
         probe_dir.mkdir(parents=True)
         try:
             with OutputLayer.create(self.input_path, self.output_path) as out:
-                author = OutputAuthor(out.stage, self.frames)
+                author = OutputAuthor(out.stage, self.frames, self.opts.aovs, self.opts.precision,
+                                      self.opts.sh_tolerance)
                 frames = self.frames
                 bar = None
                 if progress:
@@ -528,7 +724,8 @@ class ShotProcessor:
                 for f in frames:
                     self._frame(f, author, probe_dir)
                     if not written_lights and self.lights_used and self.lights_used[0].source == "estimated":
-                        write_estimated_lights(out.stage, self.lights_used)
+                        self._write_lights(out.stage, [lt for lt in self.lights_used if lt.source == "estimated"],
+                                           probe_dir)
                         written_lights = True
                     if bar:
                         bar.update(1)
@@ -537,10 +734,7 @@ class ShotProcessor:
                 self.clock.add("frames", t_frames)
                 t0 = time.perf_counter()
             self.clock.add("save", t0)
-            if self.final_probe_dir.exists():
-                shutil.rmtree(self.final_probe_dir)
-            if self.probe_files:
-                os.replace(probe_dir, self.final_probe_dir)
+            self._commit_probes(probe_dir)
         finally:
             if probe_dir.exists():
                 shutil.rmtree(probe_dir, ignore_errors=True)

@@ -1,15 +1,24 @@
 """Authoring the main job's results into the output layer (the contract downstream reads).
 
-Per receiving prim (scene, and avatars/objects that receive shadows):
+Per receiving prim (scene, and avatars/objects that receive shadows) and per relit prim:
+  the shadow-attenuated (and relit) SH, in the prim's own frame like the input attribute:
+  ``radiance:sphericalHarmonicsCoefficientsh`` half3[] with the float attribute
+  ``radiance:sphericalHarmonicsCoefficients`` blocked in the output layer (``precision='half'``,
+  so readers following the float/half rule of shared/DESIGN.md read the half one), or the float
+  attribute itself (``precision='float'``); ``interpolation`` vertex, ``elementSize`` (d+1)^2.
+Diagnostic AOVs, only when asked for (``aovs``):
   ``primvars:usdgs:transmittance``  float[]  one per particle, vertex interpolation
-  ``radiance:sphericalHarmonicsCoefficients``  float3[] shadow-attenuated (and relit) SH
-Per relit prim (avatars, objects):
-  ``primvars:usdgs:lightScale``  color3f[]  per particle, the s_c(n) of eq. 10
+  ``primvars:usdgs:lightScale``  color3f[]  per particle (relit prims), the s_c(n) of eq. 10
 Per probe: ``/UsdGs/Probes/<prim name>`` (Xform, translate time-sampled) with
   ``usdgs:probe:shCoefficients`` float3[] (3DGS basis) and ``usdgs:probe:texture`` asset.
 
 Everything is time-sampled at the processed frames where it is affected. A value that does
-not change from one processed frame to the next is not authored again. USD interpolates
+not change from one processed frame to the next, compared in the precision it is written in,
+is not authored again. An SH whose display colour, in every direction, is within
+``sh_tolerance`` of the unaffected (input) SH (:func:`sh_display_change`, an upper bound over
+all view directions) is written as the unaffected SH: a barely shadowed prim gets no sample.
+Both rules depend on each frame's own values only, so a farm chunk authors the same values at
+its frames as the whole-shot run. USD interpolates
 float arrays *linearly* between two time samples, so when a value changes after being held
 over skipped frames, the held value is authored once more at the previous processed frame:
 every processed frame then reads back exactly the value computed for it (before the first
@@ -25,9 +34,41 @@ import numpy as np
 TRANSMITTANCE = "primvars:usdgs:transmittance"
 LIGHT_SCALE = "primvars:usdgs:lightScale"
 SH_COEFFS = "radiance:sphericalHarmonicsCoefficients"
+SH_COEFFS_HALF = SH_COEFFS + "h"
+#: the diagnostic primvars ``aovs`` may name
+AOVS = {"transmittance": TRANSMITTANCE, "lightScale": LIGHT_SCALE}
+PRECISIONS = ("half", "float")
+#: default SH change threshold in display colour (0..1): half of one 8-bit step
+SH_TOLERANCE = 1.0 / 512.0
 PROBES_ROOT = "/UsdGs/Probes"
 PROBE_SH = "usdgs:probe:shCoefficients"
 PROBE_TEXTURE = "usdgs:probe:texture"
+
+
+def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
+    """Upper bound of the largest display-colour difference, over particles, channels and view
+    directions, between two SH sets ``a``, ``b`` (N, K, 3) in the 3DGS basis (colour =
+    0.5 + sum_k c_k Y_k(d)): ``max sum_k |a_k - b_k| max_d |Y_k(d)|`` with
+    ``max_d |Y_lm(d)| <= sqrt((2l + 1) / (4 pi))``."""
+    k = a.shape[1]
+    bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
+    ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
+    d = np.abs(a.astype(np.float32) - b.astype(np.float32))
+    return float(np.max(np.einsum("nkc,k->nc", d, ymax), initial=0.0))
+
+
+_HALF_MAX = float(np.finfo(np.float16).max)
+
+
+def _to_half(value: np.ndarray, prim_path: str) -> np.ndarray:
+    """``value`` as float16; ``UserError`` naming the prim and element where it overflows."""
+    big = np.flatnonzero(np.abs(value).max(axis=-1) > _HALF_MAX) if value.size else ()
+    if len(big):
+        from usd_gs.errors import UserError
+
+        raise UserError(f"{prim_path}.{SH_COEFFS_HALF}[{int(big[0])}]: SH coefficient beyond the half-precision "
+                        f"range (|x| > {_HALF_MAX:g}); run with --precision float")
+    return value.astype(np.float16)
 
 
 class _Track:
@@ -45,10 +86,18 @@ class _Track:
 class OutputAuthor:
     """Writes per-frame results as time samples into ``stage`` (the output layer's stage)."""
 
-    def __init__(self, stage, frames):
+    def __init__(self, stage, frames, aovs=tuple(AOVS), precision: str = "float", sh_tolerance: float = 0.0):
         """``frames``: the processed frames in order (time codes); results must be passed in
-        that order."""
+        that order. ``aovs``: names of :data:`AOVS` to write; ``precision``: of the SH written
+        ('half' | 'float'); ``sh_tolerance``: display-colour change below which an SH is held
+        (0: any change is written). The defaults write everything exactly; the main job passes
+        its options (``usd_gs.pipeline.options.ProcessOptions``)."""
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         self.stage = stage
+        self.aovs = frozenset(aovs)
+        self.precision = precision
+        self.sh_tolerance = float(sh_tolerance)
         frames = [float(f) for f in frames]
         self.first_frame = frames[0]
         self._previous = dict(zip(frames[1:], frames[:-1], strict=True))
@@ -67,20 +116,21 @@ class OutputAuthor:
         attr = prim.GetAttribute(name)
         return attr if attr else prim.CreateAttribute(name, type_name, False, Sdf.VariabilityVarying)
 
-    def _put(self, prim_path, name, type_name, vt_cls, value, unaffected, frame, primvar, element_size=1):
+    def _put(self, prim_path, name, type_name, vt_cls, value, unaffected, frame, primvar, element_size=1,
+             make_attr=None):
         """Author ``value`` at ``frame`` if it changed; ``unaffected`` is the value that holds
-        where nothing happened (None: the prim is always authored)."""
+        where nothing happened (None: the prim is always authored). ``make_attr()`` returns the
+        attribute to author (default: created from the name and type)."""
         key = (prim_path, name)
         track = self._tracks.setdefault(key, _Track())
         value = np.ascontiguousarray(value)
+        reference = track.last if track.started else unaffected
+        if reference is not None and np.array_equal(value, reference):
+            return False  # unchanged, or still unaffected: nothing to author
         track.clean = unaffected is not None and np.array_equal(value, unaffected)
-        if track.last is not None and np.array_equal(track.last, value):
-            return False
-        if not track.started and unaffected is not None and np.array_equal(value, unaffected):
-            return False  # still unaffected: nothing to author yet
         from pxr import Sdf
 
-        attr = self._attr(prim_path, name, type_name, primvar, element_size)
+        attr = make_attr() if make_attr else self._attr(prim_path, name, type_name, primvar, element_size)
         prev = self._previous.get(float(frame))
         held = track.last if track.started else (None if unaffected is None else np.ascontiguousarray(unaffected))
         with Sdf.ChangeBlock():
@@ -95,29 +145,62 @@ class OutputAuthor:
         return True
 
     def is_clean(self, prim_path: str) -> bool:
-        """True if the prim's transmittance, as last authored (or never), is all ones."""
-        track = self._tracks.get((prim_path, TRANSMITTANCE))
+        """True if the prim's SH, as last authored (or never), is its unaffected (input) SH."""
+        track = self._tracks.get((prim_path, SH_COEFFS))
         return track is None or track.clean
+
+    def _sh_attr(self, prim_path: str, k: int):
+        """The SH attribute this author writes on ``prim_path`` (created on first use, with
+        ``interpolation`` vertex and ``elementSize`` k; in half precision the float attribute is
+        blocked in the output layer)."""
+        from pxr import Sdf, UsdGeom
+
+        prim = self.stage.GetPrimAtPath(prim_path) or self.stage.OverridePrim(prim_path)
+        half = self.precision == "half"
+        name = SH_COEFFS_HALF if half else SH_COEFFS
+        attr = prim.GetAttribute(name)
+        if not attr or not attr.HasAuthoredMetadata("elementSize") or attr.GetMetadata("elementSize") != k:
+            attr = prim.CreateAttribute(name, Sdf.ValueTypeNames.Half3Array if half else Sdf.ValueTypeNames.Float3Array,
+                                        False, Sdf.VariabilityVarying)
+            attr.SetMetadata("interpolation", UsdGeom.Tokens.vertex)
+            attr.SetMetadata("elementSize", k)
+        if half:
+            flt = prim.GetAttribute(SH_COEFFS) or prim.CreateAttribute(SH_COEFFS, Sdf.ValueTypeNames.Float3Array,
+                                                                        False, Sdf.VariabilityVarying)
+            if not flt.GetResolveInfo().ValueIsBlocked():
+                flt.Block()
+        return attr
 
     def receiver(self, prim_path: str, frame: float, transmittance: np.ndarray, sh_out: np.ndarray,
                  sh_in: np.ndarray) -> bool:
         """Transmittance (N,) and attenuated SH (N, K, 3) of a receiving prim at ``frame``.
-        ``sh_in`` is the unshadowed SH (what holds before the prim is first affected)."""
+        ``sh_in`` is the unshadowed SH (what holds before the prim is first affected). Returns
+        whether anything was authored."""
         from pxr import Sdf, Vt
 
-        n = transmittance.shape[0]
-        ones = np.ones(n, np.float32)
-        changed = self._put(prim_path, TRANSMITTANCE, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray,
-                            transmittance.astype(np.float32), ones, frame, True)
-        k = sh_out.shape[1]
-        changed |= self._put(prim_path, SH_COEFFS, Sdf.ValueTypeNames.Float3Array, Vt.Vec3fArray,
-                             sh_out.astype(np.float32).reshape(n * k, 3), sh_in.astype(np.float32).reshape(n * k, 3),
-                             frame, False)
+        n, k = sh_out.shape[0], sh_out.shape[1]
+        changed = False
+        if "transmittance" in self.aovs:
+            changed = self._put(prim_path, TRANSMITTANCE, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray,
+                                transmittance.astype(np.float32), np.ones(n, np.float32), frame, True)
+        if self.sh_tolerance > 0.0 and sh_display_change(sh_out, sh_in) < self.sh_tolerance:
+            sh_out = sh_in  # within the tolerance of the unaffected SH: written as unaffected
+        half = self.precision == "half"
+        shape = (n * k, 3)
+        if half:
+            value, unaffected = _to_half(sh_out.reshape(shape), prim_path), _to_half(sh_in.reshape(shape), prim_path)
+        else:
+            value, unaffected = sh_out.astype(np.float32).reshape(shape), sh_in.astype(np.float32).reshape(shape)
+        changed |= self._put(prim_path, SH_COEFFS, None, Vt.Vec3hArray if half else Vt.Vec3fArray, value,
+                             unaffected, frame, False, make_attr=lambda: self._sh_attr(prim_path, k))
         return changed
 
     def light_scale(self, prim_path: str, frame: float, scale: np.ndarray) -> None:
+        """The relighting factor s_c(n) (N, 3) of a relit prim (an AOV: written only when asked for)."""
         from pxr import Sdf, Vt
 
+        if "lightScale" not in self.aovs:
+            return
         self._put(prim_path, LIGHT_SCALE, Sdf.ValueTypeNames.Color3fArray, Vt.Vec3fArray,
                   scale.astype(np.float32), None, frame, True)
 
