@@ -168,7 +168,7 @@ def main():
 
     import numba
 
-    from numba_kernels.reference.rasterize import render_reference
+    from numba_kernels.reference.rasterize import rasterize as render_reference
     from usd_gs.render.rasterize import render
     from usd_gs.synthetic import random_gaussians
 

@@ -8,7 +8,7 @@ import pytest
 
 from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.rasterize import rasterize
-from numba_kernels.reference.rasterize import render_reference
+from numba_kernels.reference.rasterize import rasterize as render_reference
 from usd_gs import sh3dgs
 from usd_gs.gaussians import GaussianSet
 from usd_gs.render.camera import Camera

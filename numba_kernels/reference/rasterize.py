@@ -72,8 +72,8 @@ def project(positions, quats, scales, view_rot, view_t, intr, width, height, dil
     return mean, cov, z
 
 
-def render_reference(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
-                     width, height, include=None, dilation=0.3, guard=1.3, rows_per_chunk=16, antialiased=False):
+def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
+              width, height, include=None, dilation=0.3, guard=1.3, rows_per_chunk=16, antialiased=False):
     """Brute-force render of one camera (same arguments as ``rasterize.rasterize`` for K=1).
 
     Returns (color (H,W,3) premultiplied, transmittance (H,W), depth_sum (H,W)), float64.
