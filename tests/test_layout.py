@@ -1,6 +1,6 @@
 """The package layout's rules (README "Layout"), checked on the source with ``ast``.
 
-- Imports point down only: data model <- io <- usd <- render <- shadows, relight <- pipeline <- farm <- cli;
+- Imports point down only: data model <- io <- usd <- render <- shadows <- relight <- pipeline <- farm <- cli;
   evaluation/ and demo/ use anything below pipeline/ (evaluation may also use demo/ and the option types in
   ``usd_gs.pipeline.options``). Modules of one subpackage may import each other.
 - No import cycle between modules (imports inside functions included).
@@ -22,8 +22,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DATA_MODEL = 0
 #: rank of each top-level part of usd_gs; an import must go to a strictly lower rank (or stay in its part)
-RANKS = {"": DATA_MODEL, "io": 1, "usd": 2, "render": 3, "shadows": 4, "relight": 4, "pipeline": 5,
-         "demo": 6, "evaluation": 7, "farm": 8, "cli": 9}
+RANKS = {"": DATA_MODEL, "io": 1, "usd": 2, "render": 3, "shadows": 4, "relight": 5, "pipeline": 6,
+         "demo": 7, "evaluation": 8, "farm": 9, "cli": 10}
 #: (importing part or module, imported module) allowed against the ranks: the package root registers the
 #: role schema plugin on import; evaluation reads the main job's option types
 EXCEPTIONS = {("usd_gs", "usd_gs.usd.schema"), ("evaluation", "usd_gs.pipeline.options")}
