@@ -218,6 +218,7 @@ class GaussianSet:
 
         Float64 math; a zero quaternion counts as identity. Per axis i the half-width is
         ``n_sigma * sqrt(sum_j R_ij^2 s_j^2)``, computed row by row without (N, 3, 3) arrays.
+        ``GaussianDataError`` names the first element whose box does not fit in float32.
         """
         if self.count == 0:
             return np.zeros((2, 3), np.float32)
@@ -230,10 +231,18 @@ class GaussianSet:
         )
         p = self.positions
         lo, hi = np.empty(3), np.empty(3)
+        big = float(np.finfo(np.float32).max)
         for i, (a, b, c) in enumerate(rows):
             half = n_sigma * np.sqrt(a * a * s2[:, 0] + b * b * s2[:, 1] + c * c * s2[:, 2])
-            lo[i] = np.min(p[:, i] - half)
-            hi[i] = np.max(p[:, i] + half)
+            lo_i, hi_i = p[:, i] - half, p[:, i] + half
+            bad = ~(np.abs(lo_i) <= big) | ~(np.abs(hi_i) <= big)
+            if bad.any():
+                j = first_bad_index(bad)
+                raise GaussianDataError(
+                    f"{self.label}: the {n_sigma:g}-sigma extent of element {j} (scales {self.scales[j].tolist()}) "
+                    f"is not finite in float32 ({int(bad.sum())} such elements); the scales are too large")
+            lo[i] = np.min(lo_i)
+            hi[i] = np.max(hi_i)
         return np.stack([lo, hi]).astype(np.float32)
 
     # ------------------------------------------------------------ operations

@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``usdgs`` console script; returns the process exit code."""
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = _join_negative_values(sys.argv[1:] if argv is None else list(argv))
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
@@ -127,6 +127,26 @@ def main(argv: list[str] | None = None) -> int:
             import signal
 
             signal.signal(signal.SIGTERM, previous)
+
+
+#: Options whose value may start with '-' (a negative frame or time): ``--frames -2:-1`` is read as
+#: ``--frames=-2:-1`` (argparse would take ``-2:-1`` for an option).
+_NEGATIVE_VALUE_OPTIONS = ("--frames", "--time")
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    import re
+
+    out, i = [], 0
+    while i < len(argv):
+        tok = argv[i]
+        if tok in _NEGATIVE_VALUE_OPTIONS and i + 1 < len(argv) and re.match(r"^-\.?\d", argv[i + 1]):
+            out.append(f"{tok}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(tok)
+        i += 1
+    return out
 
 
 class Terminated(KeyboardInterrupt):

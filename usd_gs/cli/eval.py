@@ -46,7 +46,7 @@ def run_eval(stage_path: str, camera=None, frames=None, width: int = 960, radius
         mean_metrics,
         open_eval_stage,
     )
-    from usd_gs.usd.frames import parse_frames
+    from usd_gs.usd.frames import outside_warning, parse_frames
 
     if matte not in ("caster", "stage"):
         raise UserError(f"--matte must be 'caster' or 'stage', got '{matte}'")
@@ -58,6 +58,9 @@ def run_eval(stage_path: str, camera=None, frames=None, width: int = 960, radius
     cfg, roi = dgsm_config_from_file(config)
     a, b = ctx.frames_range
     fl = parse_frames(frames, a, b) if frames is not None else default_eval_frames(ctx)
+    outside = outside_warning(fl, a, b, stage_path)
+    if outside:
+        print(f"warning: {outside}", file=sys.stderr)
     rows = []
     for f in fl:
         t0 = time.perf_counter()

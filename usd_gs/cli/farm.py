@@ -60,7 +60,8 @@ def cmd_lights(args) -> int:
     from usd_gs.usd.stage import check_usd_output_path
 
     check_usd_output_path(args.output)
-    opts = ProcessOptions(frames=args.frames, lights=args.lights or "auto", **role_paths(args))
+    opts = ProcessOptions(frames=args.frames, lights=args.lights or "auto", allow_missing=args.allow_missing,
+                          **role_paths(args))
     proc = ShotProcessor(args.stage, args.output, opts)
     lights = proc.shot_lights()
     if lights is None:
@@ -81,7 +82,7 @@ def cmd_lights(args) -> int:
 def cmd_assemble(args) -> int:
     from usd_gs.farm.clips import assemble
 
-    s = assemble(args.clips_dir, args.output)
+    s = assemble(args.clips_dir, args.output, allow_gaps=args.allow_gaps)
     if not args.quiet:
         print(f"stitched {len(s.chunks)} chunk(s), {len(s.frames)} frame(s) "
               f"({s.frames[0]:g}-{s.frames[-1]:g}) into {s.output}; topology {s.topology}, manifest {s.manifest}")
@@ -113,6 +114,9 @@ def register_assemble(sub, formatter):
                     "<stem>.topology.usdc and <stem>.manifest.usdc. Refuses mixed, overlapping or stale chunks.")
     p.add_argument("clips_dir", metavar="DIR", help="folder with the chunks")
     p.add_argument("-o", "--output", required=True, help="stitched stage to write")
+    p.add_argument("--allow-gaps", action="store_true",
+                   help="stitch even when a chunk layer in DIR has no finished manifest entry (its frames are then "
+                        "absent from OUT); by default that is an error naming the chunk and its frames")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=cmd_assemble)
 

@@ -84,8 +84,9 @@ def cmd_render(args) -> int:
     from usd_gs.usd.stage import open_stage
 
     t_start = time.perf_counter()
-    if args.width < 1:
-        raise UserError(f"--width must be >= 1, got {args.width}")
+    from usd_gs.resources import check_limit, check_memory
+
+    check_limit("width", args.width)
     background = parse_background(args.background)
     exr = args.exr or os.path.splitext(args.output)[1].lower() == ".exr"
     stage = open_stage(args.stage)
@@ -107,8 +108,13 @@ def cmd_render(args) -> int:
         if not camera_prims(stage):
             fixed = resolve_camera(stage, None, frames[0], args.width, bounds_frames=frames)
     read_s = render_s = write_s = 0.0
-    for f in frames:
+    for i, f in enumerate(frames):
         cam = fixed or resolve_camera(stage, args.camera, f, args.width)
+        if i == 0:
+            check_limit("width", cam.height, "--width (the image height from the camera's aspect)")
+            # the rasteriser's per-pixel buffers (colour, alpha, depth, tiles), twice for --compare
+            check_memory(cam.width * cam.height * 64.0 * (2 if before is not None else 1),
+                         f"render {cam.width}x{cam.height}", "--width")
         res = render_stage_frame(stage, f, cam, background=background)
         read_s += res.read_s
         render_s += res.render_s
@@ -154,7 +160,8 @@ def register_render(sub, formatter):
     p.add_argument("--camera", metavar="PATH", help="UsdGeom.Camera prim (default: the first camera in the stage, "
                                                     "else a look-at camera framing all Gaussians)")
     p.add_argument("--frames", help="frames: A-B, A:B:STEP, N, or a comma list (default: the stage's start frame)")
-    p.add_argument("--width", type=int, default=960, help="image width in pixels; height from the camera aperture")
+    p.add_argument("--width", type=int, default=960,
+                   help="image width in pixels (1..16384); height from the camera aperture")
     p.add_argument("--background", default="0,0,0", metavar="R,G,B", help="background colour")
     p.add_argument("--exr", action="store_true", help="write linear float32 RGBA OpenEXR instead of PNG")
     p.add_argument("--compare", action="store_true",

@@ -169,6 +169,40 @@ def _check_finite(label: str, arrays, allow_inf: bool = False) -> None:
             f"(value {arr.reshape(len(arr), -1)[i, j]!r}); {nbad} bad element{'s' if nbad != 1 else ''}")
 
 
+_PLY_TYPE_BYTES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+                   "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8,
+                   "float64": 8}
+
+
+def _check_claimed_size(label: str, p: Path) -> None:
+    """``InputFormatError`` when the header's element counts need more bytes than the file holds
+    (a corrupt or hostile header claiming 1e12 vertices would otherwise be allocated before the
+    data is read): each row needs at least its binary size, or 2 bytes a value in ASCII."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return  # plyfile reports what is wrong
+    body = p.stat().st_size - (head.find(b"\n", end) + 1)
+    ascii_ = b"format ascii" in head[:end]
+    need, elements = 0, []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        w = line.split()
+        if len(w) >= 3 and w[0] == "element":
+            try:
+                elements.append([w[1], int(w[2]), 0])
+            except ValueError:
+                return
+        elif len(w) >= 3 and w[0] == "property" and elements:
+            elements[-1][2] += 1 if ascii_ else (1 if w[1] == "list" else _PLY_TYPE_BYTES.get(w[1], 1))
+    for name, count, row in elements:
+        per_row = 2 * max(row, 1) if ascii_ else max(row, 1)
+        need += count * per_row
+        if count < 0 or need > body + 1:
+            raise InputFormatError(f"{label}: element '{name}': the header claims {count:,} rows, more than the "
+                                   f"{max(body, 0):,} bytes of data can hold (the file is truncated or corrupt)")
+
+
 def read_ply(path) -> GaussianSet:
     """Read an INRIA-layout 3DGS PLY file (binary or ASCII) into a :class:`GaussianSet`.
 
@@ -185,6 +219,7 @@ def read_ply(path) -> GaussianSet:
         raise InputFormatError(f"{label}: no such file")
     if not p.is_file():
         raise InputFormatError(f"{label}: not a regular file")
+    _check_claimed_size(label, p)
     try:
         ply = plyfile.PlyData.read(str(p), mmap="r")
     except plyfile.PlyHeaderParseError as exc:

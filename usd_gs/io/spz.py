@@ -235,6 +235,8 @@ def read_spz(path, coordinates: str = "native") -> GaussianSet:
         raise InputFormatError(f"{label}: not an SPZ file (starts with {head}; expected gzip data "
                                f"or the 'NGSP' magic of version 4)")
 
+    if frac > 23:  # the writers' range (24-bit fixed point); above it every position collapses towards 0
+        raise InputFormatError(f"{label}: header field 'fractionalBits' is {frac}, outside the format's 0..23")
     b = arrays["positions"].reshape(n, 3, 3).astype(np.int32)
     fixed = b[..., 0] | (b[..., 1] << 8) | (b[..., 2] << 16)
     fixed = (fixed ^ 0x800000) - 0x800000  # sign-extend 24 bits

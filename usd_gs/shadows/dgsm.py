@@ -28,6 +28,7 @@ This module imports numba (through the kernels); do not import it from file-I/O 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,10 +79,17 @@ class DGSMConfig:
             raise UserError(f"DGSM: mapping must be one of {dgsm_model.MAPPINGS}, got {self.mapping!r}")
         if self.sampling not in ("center", "stencil7", "mc"):
             raise UserError(f"DGSM: sampling must be 'center', 'stencil7' or 'mc', got {self.sampling!r}")
-        if self.atlas_size < 8 or self.atlas_size % 8:
+        from usd_gs.resources import check_limit
+
+        check_limit("atlas_size", self.atlas_size)
+        if self.atlas_size % 8:
             raise UserError(f"DGSM: atlas_size must be a positive multiple of 8, got {self.atlas_size}")
-        if self.K < 1 or self.n_samples < 1:
-            raise UserError(f"DGSM: K and n_samples must be >= 1, got {self.K}, {self.n_samples}")
+        check_limit("K", self.K, "DGSM K")
+        check_limit("n_samples", self.n_samples)
+        for name in ("roi_radius", "k_sigma", "kappa"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise UserError(f"DGSM: {name} must be a finite number, got {v!r}")
         if not (self.roi_radius > 0 and self.k_sigma > 0):
             raise UserError("DGSM: roi_radius and k_sigma must be > 0")
         return self

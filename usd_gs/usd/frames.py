@@ -7,8 +7,8 @@ Accepted forms (inclusive ends, USD time codes):
 - ``N``          the single frame N;
 - a comma-separated list of the above (``1-10,20,30:40:5``).
 
-Negative frames are written with the colon form (``-5:5``). Duplicates are removed and
-the result is sorted. ``None`` means the stage's start..end time codes.
+Negative frames are written with the colon form (``-5:5``; ``--frames -2:-1`` works without
+``=``). Duplicates are removed and the result is sorted. ``None`` means the stage's start..end time codes.
 
 :func:`as_time` is the one conversion of a time argument (a ``Usd.TimeCode``, a number or
 None) to a ``Usd.TimeCode`` that every reader, renderer and writer uses.
@@ -40,9 +40,11 @@ def _span(a: float, b: float, step: float, spec: str) -> list[float]:
         raise UserError(f"--frames '{spec}': step must be > 0")
     if b < a:
         raise UserError(f"--frames '{spec}': end {b:g} is before start {a:g}")
-    n = int(math.floor((b - a) / step + 1e-9)) + 1
-    if n > MAX_FRAMES:
-        raise UserError(f"--frames '{spec}': {n:,} frames is more than {MAX_FRAMES:,}")
+    q = (b - a) / step
+    if not math.isfinite(q) or q + 1 > MAX_FRAMES:
+        many = f"{int(q) + 1:,}" if math.isfinite(q) else "too many"
+        raise UserError(f"--frames '{spec}': {many} frames is more than {MAX_FRAMES:,}")
+    n = int(math.floor(q + 1e-9)) + 1
     return [a + i * step for i in range(n)]
 
 
@@ -68,6 +70,17 @@ def parse_frames(spec: str | None, start: float, end: float) -> list[float]:
         else:
             frames.add(_num(part, spec))
     return sorted(frames)
+
+
+def outside_warning(frames: list[float], start: float, end: float, stage_path: str) -> str | None:
+    """A warning naming the frames outside the stage's time range ``start..end`` (values are then
+    held from the nearest sample), or None when every frame is inside."""
+    out = [f for f in frames if f < start or f > end]
+    if not out:
+        return None
+    shown = ", ".join(f"{f:g}" for f in out[:5]) + (f" ... ({len(out)} in all)" if len(out) > 5 else "")
+    return (f"frame(s) {shown} outside {stage_path}'s time range {start:g}..{end:g}: values there are held from "
+            "the nearest time sample")
 
 
 def as_time(time, none=None):

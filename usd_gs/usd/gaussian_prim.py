@@ -35,6 +35,7 @@ from usd_gs.errors import GaussianDataError, InputFormatError, UserError, first_
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
 from usd_gs.usd import skel as _skel
+from usd_gs.usd.attr_types import require_types
 from usd_gs.usd.frames import as_time
 from usd_gs.usd.schema import RoleInfo, read_role, register_plugins
 
@@ -81,7 +82,8 @@ _EXTRA_TYPES = {
 
 # --------------------------------------------------------------------------- helpers
 def _time_str(time: Usd.TimeCode) -> str:
-    return "default time" if time.IsDefault() else f"time {time.GetValue():g}"
+    """'time 12', or 'default time' for the Default and EarliestTime codes (not -1.79769e+308)."""
+    return "default time" if time.IsDefault() or time.IsEarliestTime() else f"time {time.GetValue():g}"
 
 
 def uses_float(prim: Usd.Prim, name: str) -> bool:
@@ -206,6 +208,7 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
     where = f"{path} ({_time_str(tc)})" if not tc.IsDefault() else path
     if not is_gaussian_prim(prim):
         raise InputFormatError(f"{path}: prim type '{prim.GetTypeName()}' is not {GS_TYPE}")
+    require_types(prim)  # wrongly typed attributes (float[] orientations, a token degree) before any read
 
     arrays: dict[str, np.ndarray | None] = {}
     names: dict[str, str] = {}
@@ -254,6 +257,10 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
         _check_finite(arrays[name], where, names[name])
 
     quat_xyzw = arrays[ORIENTATIONS]
+    zero = ~np.any(quat_xyzw != 0, axis=1) if n else np.zeros(0, bool)
+    if zero.any():  # no rotation at all: every reader and writer would have to invent one
+        raise GaussianDataError(f"{where}: attribute '{names[ORIENTATIONS]}' element {first_bad_index(zero)} is a "
+                                f"zero-length quaternion ({int(zero.sum())} such elements)")
     orientations = np.empty((n, 4), np.float32)
     orientations[:, 0] = quat_xyzw[:, 3]
     orientations[:, 1:] = quat_xyzw[:, :3]
@@ -268,7 +275,7 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
     if skin and n and _skel.has_skel_binding(prim):
         # UsdSkel binding: the authored values are the bind pose; skin them (the prim's own transform
         # is ignored, the skeleton's applies: usd_gs.usd.skel).
-        return _skel.read_skinned(prim, gs, tc, world=world)
+        return _check_transformed(_skel.read_skinned(prim, gs, tc, world=world), path, tc)
     if world:
         m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc))
         if not np.array_equal(m, np.eye(4)):
@@ -276,7 +283,25 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
             if why is not None:
                 raise GaussianDataError(f"{where}: local-to-world transform {why}; only rotations, translations, "
                                         "reflections and uniform scales are supported")
-            gs = gs.transformed(m, label=path)
+            with np.errstate(over="ignore", invalid="ignore"):
+                gs = gs.transformed(m, label=path)
+            _check_transformed(gs, path, tc)
+    return gs
+
+
+def _check_transformed(gs: GaussianSet, path: str, tc: Usd.TimeCode) -> GaussianSet:
+    """``GaussianDataError`` naming ``prim.attribute[element]`` (as validate does) when the world
+    (or skinned) values are not finite although the authored ones are (a transform that
+    overflows float32); returns ``gs``."""
+    at = "" if tc.IsDefault() or tc.IsEarliestTime() else f" at time {tc.GetValue():g}"
+    for name in ("positions", "scales", "orientations"):
+        arr = getattr(gs, name)
+        bad = ~np.isfinite(arr).all(axis=1) if len(arr) else np.zeros(0, bool)
+        if bad.any():
+            i = first_bad_index(bad)
+            raise GaussianDataError(f"{path}.{name}[{i}]{at}: is not finite in world space (value "
+                                    f"{np.array2string(arr[i], precision=6)}; {int(bad.sum())} bad elements): the "
+                                    "prim's transform overflows float32")
     return gs
 
 
@@ -377,6 +402,7 @@ def describe_gaussian_prim(prim: Usd.Prim, time=None) -> GaussianPrimInfo:
     """:class:`GaussianPrimInfo` of ``prim`` at ``time`` (no SH data is read)."""
     tc = as_time(time)
     path = prim.GetPath().pathString
+    require_types(prim)
     pos_attr, precision = data_attribute(prim, POSITIONS)
     pos = read_array(pos_attr, tc)
     count = 0 if pos is None else len(pos)
@@ -532,6 +558,9 @@ def write_gaussian_prim(stage: Usd.Stage, path, gaussians: GaussianSet, time=Non
         OPACITIES: g.opacities.astype(dt, copy=False),
         SH_COEFFS: g.sh.astype(dt, copy=False).reshape(n * k, 3),
     }
+    if precision == "half":
+        _check_half(values, {POSITIONS: g.positions, ORIENTATIONS: g.orientations[:, [1, 2, 3, 0]],
+                             SCALES: g.scales, OPACITIES: g.opacities, SH_COEFFS: g.sh.reshape(n * k, 3)}, label)
     vt_values = {name: types[name][1].FromNumpy(np.ascontiguousarray(arr)) for name, arr in values.items()}
     extent = Vt.Vec3fArray.FromNumpy(g.extent(3.0))
     raw = []
@@ -575,6 +604,20 @@ def write_gaussian_prim(stage: Usd.Stage, path, gaussians: GaussianSet, time=Non
 
 
 # --------------------------------------------------------------------------- stages and files
+def _check_half(halves: dict, floats: dict, label: str) -> None:
+    """``UserError`` naming the attribute and first element whose value does not survive the cast
+    to half: beyond +/-65504 (it would be stored as inf) or a positive scale that becomes 0."""
+    for name, h in halves.items():
+        f = floats[name]
+        bad = ~np.isfinite(h) if name != SCALES else ~np.isfinite(h) | ((h <= 0) & (f > 0))
+        if bad.any():
+            i = first_bad_index(bad.reshape(len(bad), -1))
+            raise UserError(f"{label}: attribute '{name}{HALF_SUFFIX}' element {i} is "
+                            f"{np.array2string(np.asarray(f[i]), precision=6)}, which half precision cannot hold "
+                            f"(|value| <= 65504, scales >= 6e-8; {int(bad.reshape(len(bad), -1).any(axis=1).sum())} "
+                            "such elements); use --precision float")
+
+
 def file_format_args(path) -> tuple[Sdf.FileFormat, dict]:
     """(Sdf file format, export args) for an output path: ``.usda`` text, ``.usd``/``.usdc`` crate."""
     ext = Path(str(path)).suffix.lower().lstrip(".")

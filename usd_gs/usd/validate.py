@@ -26,6 +26,7 @@ from pxr import Usd, UsdGeom
 
 from usd_gs import sh3dgs
 from usd_gs.errors import first_bad_index
+from usd_gs.usd.attr_types import type_problems
 from usd_gs.usd.gaussian_prim import (
     DATA_ATTRS,
     EXTENT,
@@ -63,7 +64,7 @@ class Problem:
     def __str__(self) -> str:
         where = f"{self.prim_path}.{self.attribute}"
         el = f" element {self.element}" if self.element is not None else ""
-        at = f" at time {self.time:g}" if self.time is not None else ""
+        at = f" at time {self.time:g}" if self.time is not None else " at default time"
         return f"{where}{el}{at}: {self.message}"
 
 
@@ -109,13 +110,18 @@ class _Collector:
         if key in self._seen:
             return
         self._seen.add(key)
-        t = None if tc.IsDefault() else float(tc.GetValue())
+        t = None if tc.IsDefault() or tc.IsEarliestTime() else float(tc.GetValue())
         self.items.append(Problem(self.path, attribute, message, element, t))
 
 
 def validate_prim(prim: Usd.Prim, time=None) -> list[Problem]:
     """Problems of one Gaussian prim at ``time`` (every time sample when None)."""
     col = _Collector(prim.GetPath().pathString)
+    wrong = type_problems(prim)
+    if wrong:  # values of another type than the schema's: the value checks below cannot run
+        for name, msg in wrong:
+            col.add("type", name, msg, None, Usd.TimeCode.Default())
+        return col.items
     attrs = {name: data_attribute(prim, name)[0] for name in DATA_ATTRS}
     names = {name: (a.GetName() if a is not None else name) for name, a in attrs.items()}
 
