@@ -72,14 +72,14 @@ def _skel_root(prim: Usd.Prim) -> Usd.Prim | None:
     return None
 
 
-def _cache_for(prim: Usd.Prim, where: str) -> UsdSkel.Cache:
+def _cache_for(prim: Usd.Prim, where: str, fresh: bool = False) -> UsdSkel.Cache:
     root = _skel_root(prim)
     if root is None:
         raise BindingError(where, SKEL_REL, f"has a UsdSkel binding ('{SKEL_REL}') but no SkelRoot ancestor; "
                            "UsdSkel skins only prims under a SkelRoot")
-    stage = prim.GetStage()
-    key = (stage, root.GetPath())
-    cache = _CACHES.get(key)
+    # keyed by the stage's identity without holding a reference to it (a farm worker opens many stages)
+    key = (hash(prim.GetStage()), root.GetPath())
+    cache = None if fresh else _CACHES.get(key)
     if cache is None:
         if len(_CACHES) > 64:
             _CACHES.clear()
@@ -119,6 +119,9 @@ def _queries(prim: Usd.Prim, where: str):
     binding = UsdSkel.BindingAPI(prim)
     skel = binding.GetInheritedSkeleton()
     skel_query = cache.GetSkelQuery(skel)
+    if not skel_query or not cache.GetSkinningQuery(prim):  # stale cache (a new stage, or edited): rebuild once
+        cache = _cache_for(prim, where, fresh=True)
+        skel_query = cache.GetSkelQuery(skel)
     if not skel_query:
         raise BindingError(where, SKEL_REL, f"relationship '{SKEL_REL}' -> {skel.GetPrim().GetPath()} is not a "
                            "valid Skeleton (joints/bindTransforms/restTransforms)")
