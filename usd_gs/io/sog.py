@@ -168,7 +168,7 @@ def _lookup(label: str, field: str, codebook: np.ndarray, idx: np.ndarray) -> np
         i = first_bad_index(idx >= len(codebook))
         raise InputFormatError(f"{label}: '{field}' index {int(idx.reshape(len(idx), -1)[i].max())} at Gaussian {i} "
                                f"is past the {len(codebook)}-entry codebook")
-    return codebook[idx]
+    return np.take(codebook, idx)
 
 
 # ---------------------------------------------------------------------------------- decode
@@ -241,24 +241,32 @@ def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
                                "decode to positions outside the float32 range")
     u = imgs["means_l"][0][:n, :3].astype(np.uint16)
     u |= imgs["means_u"][0][:n, :3].astype(np.uint16) << 8
-    v = u / 65535.0  # the reference's order of operations: min + range * (u / 65535)
-    v *= rng
-    v += mins
     positions = out["positions"][sl]
-    positions[...] = np.copysign(np.expm1(np.abs(v)), v)
+    if n > 30000:  # a 65536-entry table per axis (same float64 values), then one gather per axis
+        v = (np.arange(65536) / 65535.0)[:, None] * rng + mins
+        lut = np.copysign(np.expm1(np.abs(v)), v).astype(np.float32)
+        for j in range(3):
+            positions[:, j] = np.take(lut[:, j], u[:, j])
+    else:
+        v = u / 65535.0  # the reference's order of operations: min + range * (u / 65535)
+        v *= rng
+        v += mins
+        positions[...] = np.copysign(np.expm1(np.abs(v)), v)
 
     qpx = imgs["quats"][0][:n]
     if n and qpx[:, 3].min() < 252:
         i = int(np.flatnonzero(qpx[:, 3] < 252)[0])
         raise InputFormatError(f"{label}: image '{qfile}' pixel {i} has alpha {int(qpx[i, 3])}; "
                                "a quaternion tag must be 252..255")
-    tag = qpx[:, 3] - np.uint8(252)
-    full = np.empty((n, 4), np.float64)
-    full[:, :3] = _QUAT_LUT[qpx[:, :3]]
-    full[:, 3] = np.sqrt(np.maximum(0.0, 1.0 - np.einsum("ij,ij->i", full[:, :3], full[:, :3])))
-    q = np.take_along_axis(full, _QUAT_PERM[tag], axis=1)
-    # never zero: the rebuilt component is 1 when the other three are 0
-    out["orientations"][sl] = q / np.sqrt(np.einsum("ij,ij->i", q, q))[:, None]
+    tag = (qpx[:, 3] - np.uint8(252)).astype(np.intp)
+    full = np.empty((n, 4), np.float64)  # (a, b, c, largest)
+    full[:, :3] = np.take(_QUAT_LUT, qpx[:, :3])
+    abc2 = np.einsum("ij,ij->i", full[:, :3], full[:, :3])
+    full[:, 3] = np.sqrt(np.maximum(0.0, 1.0 - abc2))
+    inv_norm = 1.0 / np.sqrt(abc2 + full[:, 3] ** 2)  # never zero: the largest is 1 when a = b = c = 0
+    q = np.take(full, (np.arange(n) * 4)[:, None] + _QUAT_PERM[tag])
+    q *= inv_norm[:, None]
+    out["orientations"][sl] = q
 
     out["log_scales"][sl] = _lookup(label, "scales", plan.scb, imgs["scales"][0][:n, :3])
     c0 = imgs["sh0"][0][:n]
@@ -282,7 +290,7 @@ def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
             i = int(np.flatnonzero(labels >= palette)[0])
             raise InputFormatError(f"{label}: image '{hfiles[1]}' pixel {i} has label {int(labels[i])}, past "
                                    f"meta.json 'shN.count' {palette}")
-        sh[:, 1:(bands + 1) ** 2, :] = pal[labels]
+        sh[:, 1:(bands + 1) ** 2, :] = np.take(pal, labels, axis=0)
 
 
 # ------------------------------------------------------------------------------------ LOD
