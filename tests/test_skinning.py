@@ -14,6 +14,7 @@ from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
 from usd_gs.usd import skel as uskel
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, read_gaussian_prim, write_gaussian_prim
+from usd_gs.usd.skel_bake import bake_skinning
 
 JOINTS = ["hip", "hip/knee", "hip/knee/ankle", "hip/other"]
 
@@ -247,7 +248,7 @@ def test_bake_skinning_into_an_output_layer(tmp_path):
     out = Sdf.Layer.CreateNew(str(tmp_path / "out.usda"))
     out.subLayerPaths = [str(src)]
     st = Usd.Stage.Open(out)
-    assert uskel.bake_skinning(st, "/Root/GS", [1.0, 2.0, 3.0]) == 3
+    assert bake_skinning(st, "/Root/GS", [1.0, 2.0, 3.0]) == 3
     out.Save()
     baked = Usd.Stage.Open(str(tmp_path / "out.usda"))
     prim = baked.GetPrimAtPath("/Root/GS")

@@ -54,6 +54,12 @@ _CACHES: dict = {}  # (stage, skel root path) -> UsdSkel.Cache
 _SH_TABLES: dict = {}
 
 
+def _as_time(time) -> Usd.TimeCode:
+    if time is None:
+        return Usd.TimeCode.Default()
+    return time if isinstance(time, Usd.TimeCode) else Usd.TimeCode(float(time))
+
+
 def has_skel_binding(prim: Usd.Prim) -> bool:
     """True when the prim asks to be skinned: ``UsdSkel.BindingAPI`` applied or joint influences authored,
     and an (inherited) ``skel:skeleton`` target. A binding whose skeleton relationship has no target
@@ -403,28 +409,3 @@ def binding_problems(prim: Usd.Prim, n: int, times) -> list[tuple[str, str, int 
                 break
     return out
 
-
-def bake_skinning(stage: Usd.Stage, prim_path, times) -> int:
-    """Author the skinned Gaussians of a bound prim as time samples in ``stage``'s edit target
-    (``--bake-skinning``: for viewers without UsdSkel support for splats), and block the binding
-    there (``skel:skeleton`` with an empty target list) so that every reader, UsdSkel-aware or
-    not, sees the baked values and nothing is skinned twice.
-
-    At each time code of ``times`` the prim is read as it composes now (bind pose, any SH the edit
-    target already holds, e.g. relit SH authored in bind space), skinned in prim-local space (the
-    prim's own transform then applies to the baked values, as for any unbound prim), and written
-    with ``write_gaussian_prim`` (positions, orientations, scales, opacities, SH rotated per
-    Gaussian, extent). All frames are read before the binding is blocked. Returns the number of
-    frames written; raises ``BindingError`` like :func:`evaluate_binding`.
-    """
-    from usd_gs.usd.gaussian_prim import read_gaussian_prim, write_gaussian_prim
-
-    prim = stage.GetPrimAtPath(Sdf.Path(str(prim_path)))
-    if not prim or not has_skel_binding(prim):
-        raise BindingError(str(prim_path), SKEL_REL, "is not a skinned Gaussian prim (no UsdSkel binding)")
-    frames = [(float(t), read_gaussian_prim(prim, float(t), world=False)) for t in times]
-    UsdSkel.BindingAPI(prim).GetSkeletonRel().SetTargets([])
-    for t, g in frames:
-        write_gaussian_prim(stage, prim.GetPath(), g, time=t, keep_raw=False)
-    clear_caches()
-    return len(frames)
