@@ -5,6 +5,7 @@ reading the output back gives the skinned Gaussians with the relit colour."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from pxr import Gf, Usd, UsdSkel
 
 from usd_gs.gaussians import matrix_to_quaternion
@@ -45,9 +46,11 @@ def _rig_stage(tmp_path):
     return save_stage_atomic(stage, tmp_path / "shot.usda"), avatar
 
 
-def _processed(tmp_path):
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory):
     from usd_gs.cli import main
 
+    tmp_path = tmp_path_factory.mktemp("skinned_shot")
     src, avatar = _rig_stage(tmp_path)
     out = tmp_path / "shot.lit.usda"
     assert main(["process", str(src), "--lights", "2", "--frames", "1-2", "-o", str(out), "-q"]) == 0
@@ -63,8 +66,8 @@ def _sh_attr(prim):
     return None
 
 
-def test_process_skinned_avatar(tmp_path):
-    src, out, avatar = _processed(tmp_path)
+def test_process_skinned_avatar(processed):
+    src, out, avatar = processed
     lit = Usd.Stage.Open(str(out))
     prim = lit.GetPrimAtPath("/World/Rig/Avatar")
     # moving: relit (probe) and authored at every frame
@@ -88,10 +91,10 @@ def test_process_skinned_avatar(tmp_path):
     assert abs(float(np.median(read_gaussian_prim(prim, 2.0).positions[:, 0] - avatar.positions[:, 0])) - 0.8) < 1e-5
 
 
-def test_relit_sh_authored_in_bind_space(tmp_path):
+def test_relit_sh_authored_in_bind_space(processed):
     """Relighting is a per-Gaussian colour factor: in the bind-pose SH attribute, band 1 of the relit
     output stays parallel to band 1 of the input (the factor scales it); rotated SH would not be."""
-    src, out, avatar = _processed(tmp_path)
+    src, out, avatar = processed
     lit = Usd.Stage.Open(str(out))
     src_stage = Usd.Stage.Open(str(src))
     out_b = read_gaussian_prim(lit.GetPrimAtPath("/World/Rig/Avatar"), 2.0, skin=False).sh[:, 1:4, :]
