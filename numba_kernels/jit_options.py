@@ -21,11 +21,8 @@ from numba.core.errors import NumbaPerformanceWarning
 
 #: Why some kernels marked ``# serial`` have no ``prange``: a parallel kernel costs about twice the
 #: compile time of the same loop run serially (numba types the loop body again as an outlined
-#: gufunc and LLVM optimises all linked code once more), 0.4-1.3 s each, paid on every cold run.
-#: These kernels take milliseconds per call on the demo (measured with one thread over 12 frames:
-#: transfer scale 1.7 ms, probe normal equations 1.4 ms, SH relight 0.14 ms, normal rotation 1.2 ms,
-#: tile binning 2.7 ms per call; the light-estimation grid queries and base scores < 10 ms once),
-#: so a second thread would save less than 0.1 s per 12 frames.
+#: gufunc and LLVM optimises all linked code once more), paid on every cold run, while these
+#: kernels take milliseconds per call (docs/design.md, "Compile time").
 SERIAL_NOTE = "serial kernels: compile time outweighs their parallel speed-up (see module comment)"
 
 
@@ -41,12 +38,10 @@ def prange_only() -> dict:
 def threaded() -> dict:
     """``@njit`` options of a kernel that ``thread_chunks.run_chunks`` runs on index ranges in
     threads: ``nogil`` (the threads run at once) and numba's parallel pipeline with
-    :func:`prange_only` although the kernel has no ``prange``. Measured with one thread on the
-    DGSM bench (``NUMBA_NUM_THREADS=1 benchmarks/bench_dgsm.py``): build 0.243 s as plain
-    ``nogil`` kernels, 0.209-0.232 s with the parallel pipeline's passes, for ~0.2 s more compile
-    per kernel, while a ``prange`` loop costs ~1.5 s more (its body is typed again as a gufunc).
-    numba warns that nothing could be
-    parallelised; that warning is filtered for these kernels (below)."""
+    :func:`prange_only` although the kernel has no ``prange``: the parallel pipeline's passes
+    make the serial code faster for a little more compile time, much less than a ``prange``
+    loop's (its body is typed again as a gufunc; docs/design.md, "Compile time"). numba warns
+    that nothing could be parallelised; that warning is filtered for these kernels (below)."""
     return {"nogil": True, "parallel": prange_only()}
 
 

@@ -33,10 +33,8 @@ scales (N, 3), linear opacities (N,)):
    of untrusted ones flip a normal whose opacity-weighted vote ``sum_j o_j <n_i, n_j>`` over
    tangential neighbours (|<p_j - p_i, n_i>| <= 0.5 |p_j - p_i|) is negative.
 
-Measured (``tests/test_normals.py``; CesiumMan from ``usd_gs.evaluation.relight_groundtruth.make_avatar``,
-local z = mesh normal): Gaussians pointing into the body 1.1 / 2.7 / 7.7 / 19 % -> 0.07 / 0 /
-0.02 / 0.01 % at 1500 / 4000 / 30000 / 150000 Gaussians (seeds 0-3 at 1000-30000: mean
-3.0 % -> 0.34 %, at most 1.8 % at 1000); flat faces of two cubes 10 % -> 0.
+``tests/test_normals.py`` bounds the share of normals pointing into a mesh avatar's body and
+across flat faces; the figures are in docs/design.md, "Normals".
 
 Neighbours come from the spatial hash of ``numba_kernels.grid_neighbours`` (cell = radius;
 points are processed in grid order for cache locality); no KD-tree is needed at run time.

@@ -1,8 +1,8 @@
 """Parallel loops as Python threads over serial ``nogil`` kernels (no numba parfors).
 
 A ``prange`` loop costs compile time on every cold run: numba types the loop body a second
-time as an outlined gufunc and optimises the linked code again (measured 0.9-1.8 s for each of
-the rasteriser's parallel wrappers, whose bodies are a single call). The same parallelism
+time as an outlined gufunc and optimises the linked code again (docs/design.md, "Compile
+time"). The same parallelism
 comes from running a serial kernel compiled with ``nogil=True`` on index ranges in a few
 threads: :func:`run_chunks` splits ``range(n)`` into ``chunks_per_thread`` x threads
 contiguous ranges and calls ``kernel(lo, hi, *args)`` on each from a shared thread pool

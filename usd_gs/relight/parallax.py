@@ -44,19 +44,15 @@ import numpy as np
 
 OCCLUSION_SIZE = 32
 """Face size of the occlusion test's z-buffer (:func:`_occlusion_weights`; the default probe
-render's size, ``ProcessOptions.probe_size``). Measured on the known-light ground truth (``usd_gs.evaluation.relight_groundtruth``,
-default size; PSNR over the avatar, props + lamp / lamp / props / neither): none 26.8 / 30.6 /
-27.5 / 30.9 dB; 16: 31.9 / 32.0 / 30.5 / 30.8; 32: 31.8 / 31.9 / 30.6 / 30.8; 64: 31.8 / 31.9 /
-30.6 / 30.8; about 1 ms per probe point (8 per prim: `reprojected_probes` 6-8 -> 15 ms on the
-demo)."""
+render's size, ``ProcessOptions.probe_size``). The choice and its measured effect on the
+known-light ground truth: docs/design.md, "Parallax probes"."""
 _DISC = 0.75
 """Disc radius per texel: ``_DISC sqrt(solid angle)`` (the equal-area disc, 0.56, leaves the
 corners of a square texel lattice open: 30 % of the sky behind a panel stayed visible)."""
 _MIN_SPLAT_COS = 0.3
 """Texels seen from the new point at a grazing angle (``cos < _MIN_SPLAT_COS``: a floor's far
 part seen from a foot) hide nothing: their footprint is a sliver, not a disc, and as discs they
-hid the dawn sun just above the floor's far edge (the four ground-truth scenes of
-:data:`OCCLUSION_SIZE` with every texel a disc: 30.2 / 30.2 / 27.3 / 27.5 dB)."""
+hid the dawn sun just above the floor's far edge (docs/design.md, "Parallax probes")."""
 _SAME_LAYER = 0.5
 """A disc hides a texel only if it is nearer than ``dist / (1 + _SAME_LAYER)``: neighbouring
 texels of one surface never hide each other."""

@@ -178,17 +178,10 @@ def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | Non
     The probe measures radiance, so the display low-pass filter is off (``PROBE_DILATION`` =
     0 px^2; any other ``dilation`` is applied opacity-compensated, ``antialiased``), and the
     faces are drawn at ``supersample`` x ``size`` and box-filtered down: premultiplied rgb and
-    alpha averaged, depth alpha-weighted. Measured on the known-light ground truth
-    (``usd_gs.evaluation.relight_groundtruth``): the ground truth's 0.3 m lamp 4.3 m away, drawn alone at
-    32^2, comes out 7.8 % too bright (its texel-centre samples; 1.5 % drawn at 2x), which cost 1-2 dB
-    (relit PSNR at the bench size, props + lamp / lamp / props / neither: 29.5 / 29.1 / 31.7 /
-    31.5 dB; supersampled 2x: 31.5 / 31.0 / 31.9 / 31.6; at the default size 31.8 / 31.9 / 30.6 /
-    30.8 against 31.6 / 31.9 / 30.7 / 30.9: no gain); 11-15 ms more per render of the demo (35-55 ->
-    46-70 ms; ``benchmarks/bench_lighting_limits.py`` prints the lamp and these timings), which is why it is off by
-    default (the main job's cold-cache target). Earlier,
-    with one probe and mesh normals: 26.1 dB at 32^2 and 64^2 faces without dilation; the 3DGS
-    0.3 px^2 dilation gave 11.5 dB plain (the small lamp ~3x too bright) and 19.3 / 22.2 dB
-    compensated (the 1/255 alpha floor then drops the blurred lamp's tails)."""
+    alpha averaged, depth alpha-weighted. Supersampling integrates a small lamp over each texel
+    instead of sampling it at texel centres; it is off by default (its gain and cost on the
+    known-light ground truth and the demo: docs/design.md, "Probe supersampling";
+    ``benchmarks/bench_lighting_limits.py`` prints them)."""
     from usd_gs.render.rasterize import render_cube_faces
 
     k = int(supersample)
