@@ -1,0 +1,98 @@
+"""Lights for captures: open/closed decision, the sun from baked shadows, overcast, implausible emitters."""
+
+import numpy as np
+import pytest
+
+from numba_kernels.reference.sun_shadow import transmittance_directions_numpy
+from numba_kernels.sun_shadow import transmittance_directions
+from usd_gs import sh3dgs
+from usd_gs.demo.room import make_room
+from usd_gs.evaluation.sun_scene import make_sun_scene
+from usd_gs.gaussians import GaussianSet
+from usd_gs.relight import sun_estimation as se
+from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
+
+CENTRE = np.array([1.2, 0.9, 0.9])  # an avatar's region beside the statue-sized box, on the sunlit side
+
+
+@pytest.fixture(scope="module")
+def sunny():
+    return make_sun_scene(sun_elevation_deg=50.0, sun_azimuth_deg=35.0, ratio=3.0, ground_half=2.5, spacing=0.08,
+                          sky_samples=32, seed=1)
+
+
+@pytest.fixture(scope="module")
+def overcast():
+    return make_sun_scene(overcast=True, ground_half=2.5, spacing=0.08, sky_samples=32, seed=1)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return make_room(density=60.0, seed=0)
+
+
+def test_kernel_matches_reference(sunny):
+    g = sunny.gaussians
+    cast = g.subset(np.flatnonzero(sunny.part == 1))
+    ground = np.flatnonzero(sunny.part == 0)
+    pos = g.positions[ground].astype(np.float64)
+    near = ground[np.argsort(np.linalg.norm(pos[:, [0, 2]] - [-0.6, 0.6], axis=1))[:40]]  # in the box's shadow
+    pts = np.concatenate([g.positions[near], g.positions[ground[:10]]]).astype(np.float64)
+    occ, dep, cov6 = prepare_occluders(cast, DGSMConfig())
+    dirs = -np.array([sunny.sun, [0.2, 0.9, -0.3], [-0.6, 0.45, 0.6]])
+    got = transmittance_directions(dirs, occ, dep, cov6, pts, k_sigma=6.0, cell=0.05)
+    want = transmittance_directions_numpy(dirs, occ, dep, pts)
+    assert (want < 0.5).sum() > 10  # some points are in a shadow
+    np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+def test_sun_direction_and_ratio_from_the_baked_shadow(sunny):
+    est = se.estimate_sun(sunny.gaussians, CENTRE, "Y", ground_hint=0.0)
+    assert est is not None and est.confident, est.line()
+    assert se.angle_deg(est.direction, sunny.sun) < 3.0
+    assert est.ratio == pytest.approx(sunny.ratio, rel=0.15)
+    # the darkening of a full shadow is the sun's share of the lit ground's light: E_sun cos / (E_sun cos + E_sky)
+    rc = sunny.ratio * float(sunny.sun[1])
+    assert est.direct_share == pytest.approx(rc / (1 + rc), abs=0.04)
+
+
+def test_overcast_gives_no_confident_sun(overcast):
+    est = se.estimate_sun(overcast.gaussians, CENTRE, "Y", ground_hint=0.0)
+    assert est is not None
+    assert not est.confident and est.score < se.CaptureConfig().score_threshold
+
+
+def test_open_and_closed_decisions(sunny, room):
+    d_open = se.classify_capture(sunny.gaussians, CENTRE, "Y")
+    assert d_open.is_open and d_open.empty_share > 0.9 and not d_open.compact
+    d_room = se.classify_capture(room.gaussians, np.array([-1.6, 0.9, -0.4]), "Y")
+    assert not d_room.is_open and d_room.empty_share < 0.05 and len(d_room.compact) == 2
+
+
+def _cluster(centre, n=48, radius=0.06, gain=6.0, seed=0):
+    rng = np.random.default_rng(seed)
+    d = rng.standard_normal((n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pos = np.asarray(centre) + d * (radius * rng.uniform(0, 1, n) ** (1 / 3))[:, None]
+    sh = np.zeros((n, 4, 3), np.float32)
+    sh[:, 0] = (gain - 0.5) / sh3dgs.C0
+    return GaussianSet(pos, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), radius / 3), np.full(n, 0.9), sh)
+
+
+def test_mirror_image_and_hidden_patch_are_rejected(room):
+    lamp = room.lamps[0].position
+    mirror = lamp * np.array([1.0, -1.0, 1.0])  # the lamp's reflection under a glossy floor (y = 0)
+    behind = np.array([4.4, 1.5, 0.0])  # a bright patch behind the x = +4 wall
+    scene = GaussianSet.concatenate([room.gaussians, _cluster(mirror), _cluster(behind, seed=1)])
+    cands = se.emitter_candidates(scene, np.array([-1.6, 0.9, -0.4]), 6)
+    positions = np.array([c.position for c in cands])
+    for p in (lamp, mirror, behind):
+        assert np.min(np.linalg.norm(positions - p, axis=1)) < 0.1  # paper 3.1 finds all three
+    pts = se.region_points(np.array([-1.6, 0.9, -0.4]), "Y", 0.5)
+    se.plausible_emitters(scene, cands, pts, "Y", floor_height=0.0)
+    by = {tuple(np.round(p, 1)): c for p in (lamp, mirror, behind)
+          for c in cands if np.linalg.norm(c.position - p) < 0.1}
+    assert by[tuple(np.round(lamp, 1))].rejected == ""
+    assert "below the floor" in by[tuple(np.round(mirror, 1))].rejected
+    assert "hidden" in by[tuple(np.round(behind, 1))].rejected
+    assert by[tuple(np.round(behind, 1))].visibility < 0.2
