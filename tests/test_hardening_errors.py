@@ -7,9 +7,9 @@ import json
 import os
 
 import pytest
+from hardening_util import tiny_shot
 from pxr import Sdf, Usd, Vt
 
-from hardening_util import tiny_shot
 from usd_gs.cli import main
 
 
@@ -108,8 +108,8 @@ def test_config_values_of_the_wrong_type(shot, tmp_path, capsys, cfg, needle):
     c.write_text(json.dumps(cfg))
     assert main(["process", str(shot), "--config", str(c), "-o", str(tmp_path / "o.usdc"), "-q"]) == 2
     assert needle in _err(capsys)
-    from usd_gs.evaluation.shadow_stage import dgsm_config_from_file
     from usd_gs.errors import UserError
+    from usd_gs.evaluation.shadow_stage import dgsm_config_from_file
 
     with pytest.raises(UserError, match=needle):  # what 'usdgs eval --config' reads
         cfg_, _ = dgsm_config_from_file(str(c))

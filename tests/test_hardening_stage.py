@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from hardening_util import leftovers, tiny_shot
+
 from usd_gs.cli import main
 
 

@@ -9,9 +9,9 @@ import struct
 
 import numpy as np
 import pytest
+from hardening_util import tiny_shot
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from hardening_util import tiny_shot
 from usd_gs.cli import main
 from usd_gs.io.ply import write_ply
 from usd_gs.synthetic import random_gaussians

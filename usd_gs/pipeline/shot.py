@@ -659,6 +659,22 @@ class ShotProcessor:
         finally:
             jit_warmup.stop(warmup)
 
+    def _deinstance(self, out_stage) -> None:
+        """Instanced Gaussian prims (read through instance proxies) cannot take the output's
+        opinions: their instance roots get ``instanceable = false`` in the output layer, outermost
+        first, so the proxies become ordinary prims there (the input is not changed)."""
+        roots = set()
+        for prim in self.prims.values():
+            if not prim.IsInstanceProxy():
+                continue
+            p = prim.GetParent()
+            while p and not p.IsPseudoRoot():
+                if p.IsInstance():
+                    roots.add(p.GetPath())
+                p = p.GetParent()
+        for path in sorted(roots, key=lambda q: q.pathElementCount):
+            out_stage.OverridePrim(path).SetInstanceable(False)
+
     def _commit_probes(self, probe_dir: Path) -> None:
         """Put this run's probe folder in place of the previous one with two renames (the old one is
         moved aside first and removed after), so no moment leaves a half-deleted folder."""
@@ -711,6 +727,7 @@ class ShotProcessor:
         probe_dir.mkdir(parents=True)
         try:
             with OutputLayer.create(self.input_path, self.output_path) as out:
+                self._deinstance(out.stage)
                 author = OutputAuthor(out.stage, self.frames, self.opts.aovs, self.opts.precision,
                                       self.opts.sh_tolerance)
                 frames = self.frames

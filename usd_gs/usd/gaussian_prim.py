@@ -152,10 +152,11 @@ def is_gaussian_prim(prim: Usd.Prim) -> bool:
 def find_gaussian_prims(stage: Usd.Stage) -> list[Usd.Prim]:
     """Every active, defined, non-abstract Gaussian splat prim, sorted by path.
 
-    Prims written by older tools are found by their type name alone; instance proxies
-    (instanced hierarchies) are not traversed.
+    Prims written by older tools are found by their type name alone. Instanced hierarchies are
+    read through their instance proxies (one prim per instance, at the instance's path, its
+    prototype's values with the instance's transform); prototypes themselves are not listed.
     """
-    prims = [p for p in stage.Traverse() if is_gaussian_prim(p)]
+    prims = [p for p in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)) if is_gaussian_prim(p)]
     prims.sort(key=lambda p: p.GetPath().pathString)
     return prims
 
