@@ -129,9 +129,89 @@ def _mat_to_quat9(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     return w / n, x / n, y / n, z / n
 
 
+@njit(cache=True)
+def _dq_affine(joint_idx, weights, i, best_j, dq, scl, pre, post):
+    """Gaussian i's affine map (3x4, row-major scalars) under UsdSkel's dual-quaternion skinning:
+    ``post @ [R_dq S | t_dq] @ pre`` with ``S = sum_k w_k scl[j_k]`` (the joints' stretch parts,
+    blended linearly) and the blended dual quaternion (signs aligned with the largest-weight
+    joint's, normalised, Pluecker-corrected; identity when its real part vanishes)."""
+    pw, px, py, pz = dq[best_j, 0], dq[best_j, 1], dq[best_j, 2], dq[best_j, 3]
+    rw = rx = ry = rz = 0.0
+    dw = dx = dy = dz = 0.0
+    s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
+    for k in range(joint_idx.shape[1]):
+        j = joint_idx[i, k]
+        w = float(weights[i, k])
+        if w == 0.0:
+            continue
+        s00 += w * scl[j, 0, 0]
+        s01 += w * scl[j, 0, 1]
+        s02 += w * scl[j, 0, 2]
+        s10 += w * scl[j, 1, 0]
+        s11 += w * scl[j, 1, 1]
+        s12 += w * scl[j, 1, 2]
+        s20 += w * scl[j, 2, 0]
+        s21 += w * scl[j, 2, 1]
+        s22 += w * scl[j, 2, 2]
+        if dq[j, 0] * pw + dq[j, 1] * px + dq[j, 2] * py + dq[j, 3] * pz < 0.0:
+            w = -w
+        rw += w * dq[j, 0]
+        rx += w * dq[j, 1]
+        ry += w * dq[j, 2]
+        rz += w * dq[j, 3]
+        dw += w * dq[j, 4]
+        dx += w * dq[j, 5]
+        dy += w * dq[j, 6]
+        dz += w * dq[j, 7]
+    ln = math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    if ln < 1e-10:
+        rw, rx, ry, rz, dw, dx, dy, dz = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    else:
+        rw, rx, ry, rz, dw, dx, dy, dz = rw / ln, rx / ln, ry / ln, rz / ln, dw / ln, dx / ln, dy / ln, dz / ln
+        e = rw * dw + rx * dx + ry * dy + rz * dz
+        dw, dx, dy, dz = dw - e * rw, dx - e * rx, dy - e * ry, dz - e * rz
+    # translation 2 * vec(dual * conj(real))
+    tx = 2.0 * (-dw * rx + dx * rw - dy * rz + dz * ry)
+    ty = 2.0 * (-dw * ry + dy * rw - dz * rx + dx * rz)
+    tz = 2.0 * (-dw * rz + dz * rw - dx * ry + dy * rx)
+    q00, q01, q02 = 1.0 - 2.0 * (ry * ry + rz * rz), 2.0 * (rx * ry - rw * rz), 2.0 * (rx * rz + rw * ry)
+    q10, q11, q12 = 2.0 * (rx * ry + rw * rz), 1.0 - 2.0 * (rx * rx + rz * rz), 2.0 * (ry * rz - rw * rx)
+    q20, q21, q22 = 2.0 * (rx * rz - rw * ry), 2.0 * (ry * rz + rw * rx), 1.0 - 2.0 * (rx * rx + ry * ry)
+    # m = [Q S | t] (3x4), then post @ m @ pre
+    m = np.empty((4, 4))
+    m[0, 0] = q00 * s00 + q01 * s10 + q02 * s20
+    m[0, 1] = q00 * s01 + q01 * s11 + q02 * s21
+    m[0, 2] = q00 * s02 + q01 * s12 + q02 * s22
+    m[1, 0] = q10 * s00 + q11 * s10 + q12 * s20
+    m[1, 1] = q10 * s01 + q11 * s11 + q12 * s21
+    m[1, 2] = q10 * s02 + q11 * s12 + q12 * s22
+    m[2, 0] = q20 * s00 + q21 * s10 + q22 * s20
+    m[2, 1] = q20 * s01 + q21 * s11 + q22 * s21
+    m[2, 2] = q20 * s02 + q21 * s12 + q22 * s22
+    m[0, 3], m[1, 3], m[2, 3] = tx, ty, tz
+    m[3, 0] = m[3, 1] = m[3, 2] = 0.0
+    m[3, 3] = 1.0
+    t = np.empty((4, 4))
+    for u in range(4):
+        for v in range(4):
+            acc = 0.0
+            for k in range(4):
+                acc += m[u, k] * pre[k, v]
+            t[u, v] = acc
+    out = np.empty((3, 4))
+    for u in range(3):
+        for v in range(4):
+            acc = 0.0
+            for k in range(4):
+                acc += post[u, k] * t[k, v]
+            out[u, v] = acc
+    return (out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[1, 0], out[1, 1], out[1, 2], out[1, 3],
+            out[2, 0], out[2, 1], out[2, 2], out[2, 3])
+
+
 @njit(cache=True, **threaded())
 def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, skin, dirs, pinv,
-                out_pos, out_quat, out_scales, out_sh, out_rot):
+                out_pos, out_quat, out_scales, out_sh, out_rot, mode, dq, scl, pre, post):
     n_inf = joint_idx.shape[1]
     n_coef = sh.shape[1]
     m = dirs.shape[0]
@@ -161,6 +241,9 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
                 a21 += w * skin[j, 2, 1]
                 a22 += w * skin[j, 2, 2]
                 a23 += w * skin[j, 2, 3]
+        if mode == 1:
+            a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23 = _dq_affine(
+                joint_idx, weights, i, best_j, dq, scl, pre, post)
         px, py, pz = float(rest_pos[i, 0]), float(rest_pos[i, 1]), float(rest_pos[i, 2])
         out_pos[i, 0] = a00 * px + a01 * py + a02 * pz + a03
         out_pos[i, 1] = a10 * px + a11 * py + a12 * pz + a13
@@ -233,10 +316,17 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
                 band += 1
 
 
-def skin_gaussians(rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, skin, dirs, pinv):
+def skin_gaussians(rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, skin, dirs, pinv, dual=None):
     """Skin N Gaussians (module docstring). Returns ``(positions (N, 3), orientations (N, 4) wxyz,
     scales (N, 3), sh (N, C, 3), rotations (N, 3, 3))``, all float32 (rotations: the per-Gaussian
-    polar rotation ``R``, column-vector convention)."""
+    polar rotation ``R``, column-vector convention).
+
+    ``dual``: None for linear blend skinning with ``skin``; else ``(dq (J, 8), scl (J, 3, 3), pre (4, 4),
+    post (4, 4))`` float64 for UsdSkel's dual-quaternion skinning (``skin`` unused): each joint's
+    rigid part as a unit dual quaternion (real w, x, y, z, dual w, x, y, z), its stretch ``scl`` (the
+    symmetric polar factor, applied first, blended linearly), ``pre`` the geomBindTransform and
+    ``post`` skeleton space -> output space, column-vector. The Gaussian's affine map is then
+    ``post @ [R S | t] @ pre``; orientation, scale and SH follow its 3x3 as in the linear case."""
     n = rest_pos.shape[0]
     c = sh.shape[1]
     out_pos = np.empty((n, 3), np.float32)
@@ -244,6 +334,10 @@ def skin_gaussians(rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, ski
     out_scales = np.empty((n, 3), np.float32)
     out_sh = np.empty((n, c, 3), np.float32)
     out_rot = np.empty((n, 3, 3), np.float32)
+    if dual is None:
+        mode, dq, scl, pre, post = 0, np.zeros((1, 8)), np.zeros((1, 3, 3)), np.eye(4), np.eye(4)
+    else:
+        mode, (dq, scl, pre, post) = 1, (np.ascontiguousarray(a, np.float64) for a in dual)
     run_chunks(_skin_range, n, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, skin, dirs, pinv,
-               out_pos, out_quat, out_scales, out_sh, out_rot, min_chunk=2048)
+               out_pos, out_quat, out_scales, out_sh, out_rot, mode, dq, scl, pre, post, min_chunk=2048)
     return out_pos, out_quat, out_scales, out_sh, out_rot

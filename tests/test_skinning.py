@@ -48,7 +48,7 @@ def random_influences(n, k, j, seed=1):
     return idx, w.astype(np.float32)
 
 
-def build_stage(n=300, k=3, degree=2, with_anim=True, prim_joints=None, geom_bind=None, seed=0):
+def build_stage(n=300, k=3, degree=2, with_anim=True, prim_joints=None, geom_bind=None, seed=0, method=None):
     """SkelRoot /Root with a translated+rotated Skeleton, a 3-sample SkelAnimation, a bound Gaussian
     prim /Root/GS and a Mesh /Root/Mesh with the same points and influences."""
     stage = Usd.Stage.CreateInMemory()
@@ -81,6 +81,9 @@ def build_stage(n=300, k=3, degree=2, with_anim=True, prim_joints=None, geom_bin
     mesh.CreateFaceVertexCountsAttr([3] * (n // 3))
     mesh.CreateFaceVertexIndicesAttr(list(range(3 * (n // 3))))
     uskel.bind_prim(mesh.GetPrim(), sk, idx, w, geom_bind=gb, joints=prim_joints)
+    if method is not None:
+        for p in (prim, mesh.GetPrim()):
+            UsdSkel.BindingAPI(p).CreateSkinningMethodAttr().Set(method)
     return stage, g, idx, w
 
 
@@ -260,3 +263,52 @@ def test_bake_skinning_into_an_output_layer(tmp_path):
         np.testing.assert_allclose(got.sh, ref.sh, atol=1e-5)
         np.testing.assert_allclose(np.abs(np.sum(got.orientations * ref.orientations, axis=1)), 1.0, atol=1e-5)
     assert uskel.has_skel_binding(src_stage.GetPrimAtPath("/Root/GS"))
+
+
+@pytest.mark.parametrize("prim_joints", [None, ["hip/other", "hip/knee/ankle", "hip", "hip/knee"]])
+def test_dual_quaternion_positions_match_bake_skinning(prim_joints):
+    """primvars:skel:skinningMethod dualQuaternion: centres equal UsdSkel's own DQS of the same points
+    (BakeSkinning of the Mesh); the orientation is the rotation of the Gaussian's DQS affine map."""
+    stage, g, idx, w = build_stage(prim_joints=prim_joints, method=UsdSkel.Tokens.dualQuaternion, degree=1)
+    prim = stage.GetPrimAtPath("/Root/GS")
+    skinned = {t: read_gaussian_prim(prim, t) for t in (1.0, 2.0, 3.0)}
+    lbs = uskel.skin_gaussian_set(read_gaussian_prim(prim, 3.0, skin=False, world=False),
+                                  uskel.SkinBinding(*[getattr(uskel.evaluate_binding(prim, g.count, 3.0), f)
+                                                      for f in ("joint_indices", "weights", "skinning", "skeleton",
+                                                                "animation", "method", "time_range")]))
+    b = uskel.evaluate_binding(prim, g.count, 3.0)
+    assert b.method == "dualQuaternion"
+    rest = read_gaussian_prim(prim, 3.0, skin=False, world=False)
+    lo, hi = describe_gaussian_prim(prim, 3.0).world_bounds
+    assert np.all(skinned[3.0].positions >= lo - 1e-6) and np.all(skinned[3.0].positions <= hi + 1e-6)
+    baked = _baked_mesh_points(stage, (1.0, 2.0, 3.0))
+    for t in (1.0, 2.0, 3.0):
+        err = np.abs(skinned[t].positions.astype(np.float64) - baked[t]).max()
+        assert err < 1e-5, (t, err)
+    assert np.abs(lbs.positions - skinned[3.0].positions).max() > 1e-3  # DQS is not LBS here
+    # rotation part of the DQS map: a finite difference of the skinned centres along the rest axes
+    eps = 1e-4
+    jac = np.stack([(uskel.dq_positions(rest.positions + eps * e, b.joint_indices, b.weights, b.dual)
+                     - uskel.dq_positions(rest.positions - eps * e, b.joint_indices, b.weights, b.dual)) / (2 * eps)
+                    for e in np.eye(3)], axis=2)
+    u, _, vt = np.linalg.svd(jac)
+    rot = u @ vt
+    want = np.einsum("nij,njk->nik", rot, quaternion_to_matrix(rest.orientations))
+    np.testing.assert_allclose(quaternion_to_matrix(skinned[3.0].orientations), want, atol=2e-4)
+
+
+def test_dual_quaternion_kernel_matches_reference():
+    stage, g, idx, w = build_stage(n=150, k=3, degree=3, method=UsdSkel.Tokens.dualQuaternion)
+    prim = stage.GetPrimAtPath("/Root/GS")
+    rest = read_gaussian_prim(prim, 3.0, skin=False, world=False)
+    b = uskel.evaluate_binding(prim, rest.count, 3.0)
+    dirs, pinv = uskel.sh_rotation_tables(3)
+    args = (rest.positions, rest.orientations, rest.scales, rest.sh, b.joint_indices, b.weights, b.skinning)
+    got = skin_gaussians(*[np.ascontiguousarray(a) for a in args], dirs, pinv, b.dual)
+    ref = skin_reference(*args, dirs, pinv, b.dual)
+    np.testing.assert_allclose(got[0], ref[0], atol=2e-6)
+    np.testing.assert_allclose(np.abs(np.sum(got[1] * ref[1], axis=1)), 1.0, atol=2e-6)
+    np.testing.assert_allclose(got[2], ref[2], rtol=2e-6)
+    np.testing.assert_allclose(got[3], ref[3], atol=2e-5)
+    np.testing.assert_allclose(got[0], uskel.dq_positions(rest.positions.astype(np.float64), b.joint_indices,
+                                                          b.weights, b.dual), atol=2e-6)

@@ -54,7 +54,39 @@ def _qmul(a, b):
                      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
 
 
-def skin_gaussians(rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, skin, dirs, pinv=None):
+def _quat_matrix(q):
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _dq_affine(idx, w, dual):
+    """4x4 affine ``post @ [R S | t] @ pre`` of one Gaussian under dual-quaternion skinning."""
+    dq, scl, pre, post = dual
+    pivot = dq[idx[int(np.argmax(w))], :4]
+    blend = np.zeros(8)
+    stretch = np.zeros((3, 3))
+    for j, wk in zip(idx, w, strict=True):
+        if wk == 0:
+            continue
+        stretch += wk * scl[j]
+        blend += (wk if np.dot(dq[j, :4], pivot) >= 0 else -wk) * dq[j]
+    real, du = blend[:4], blend[4:]
+    n = np.linalg.norm(real)
+    if n < 1e-10:
+        real, du = np.array([1.0, 0, 0, 0]), np.zeros(4)
+    else:
+        real, du = real / n, du / n
+        du = du - np.dot(real, du) * real
+    t = 2.0 * _qmul(du, real * [1, -1, -1, -1])[1:]
+    m = np.eye(4)
+    m[:3, :3] = _quat_matrix(real) @ stretch
+    m[:3, 3] = t
+    return post @ m @ pre
+
+
+def skin_gaussians(rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, skin, dirs, pinv=None, dual=None):
     """Reference of the kernel (``pinv`` is ignored: each band is fitted by ``lstsq`` here)."""
     n, c = rest_pos.shape[0], sh.shape[1]
     out_pos = np.zeros((n, 3))
@@ -65,7 +97,7 @@ def skin_gaussians(rest_pos, rest_quat, rest_scales, sh, joint_idx, weights, ski
     y_world = basis(np.asarray(dirs, np.float64))
     for i in range(n):
         w = weights[i].astype(np.float64)
-        blend = np.einsum("k,kij->ij", w, skin[joint_idx[i]])
+        blend = np.einsum("k,kij->ij", w, skin[joint_idx[i]]) if dual is None else _dq_affine(joint_idx[i], w, dual)
         out_pos[i] = blend[:3, :3] @ rest_pos[i].astype(np.float64) + blend[:3, 3]
         r, det = _polar(blend[:3, :3])
         if r is None:

@@ -17,7 +17,11 @@ Gaussians with ``numba_kernels.skinning``: a bind point ``p`` goes to
 local-to-world (world space; the skinned prim's own transform is ignored, as UsdSkel does).
 Orientations follow the polar rotation of the blended 3x3, scales its uniform part
 ``det^(1/3)``, SH bands 1..3 are rotated exactly per band (the kernel's docstring). Weights are
-used as authored (validated to sum to 1 within :data:`WEIGHT_SUM_TOL`).
+used as authored (validated to sum to 1 within :data:`WEIGHT_SUM_TOL`). With
+``primvars:skel:skinningMethod`` = ``dualQuaternion`` the centres follow UsdSkel's dual-quaternion
+skinning instead (each joint's stretch blended linearly and applied first, its rigid part as a
+blended unit dual quaternion, signs aligned with the largest-weight joint), and orientation, scale
+and SH follow the 3x3 of that per-Gaussian affine map.
 
 Nothing here imports numba at module level; :func:`skin_gaussian_set` imports the kernel.
 """
@@ -108,7 +112,9 @@ class SkinBinding:
     ``skinning`` (J, 4, 4) float64 COLUMN-vector matrices bind space -> world (or prim-local when
     read with ``world=False``): geomBind, the joint's skinning transform and the skeleton's
     local-to-world folded together. ``skeleton`` and ``animation`` are prim paths;
-    ``time_range`` the (first, last) time samples of the animation or None.
+    ``time_range`` the (first, last) time samples of the animation or None. ``method`` is the
+    prim's ``primvars:skel:skinningMethod`` (``classicLinear`` or ``dualQuaternion``); for the
+    latter ``dual`` holds the kernel's dual-quaternion inputs (:func:`dual_quaternion_inputs`).
     """
 
     joint_indices: np.ndarray
@@ -118,6 +124,7 @@ class SkinBinding:
     animation: str
     method: str
     time_range: tuple[float, float] | None
+    dual: tuple | None = None
 
 
 def _queries(prim: Usd.Prim, where: str):
@@ -243,8 +250,64 @@ def evaluate_binding(prim: Usd.Prim, n: int, time=None, world: bool = True) -> S
     if not np.isfinite(col).all():
         raise BindingError(where, SKEL_REL, f"Skeleton {skel_path} skinning transforms are not finite")
     method = str(sq.GetSkinningMethod()) if hasattr(sq, "GetSkinningMethod") else "classicLinear"
+    dual = None
+    if method == str(UsdSkel.Tokens.dualQuaternion):
+        dual = dual_quaternion_inputs(np.transpose(mats, (0, 2, 1)), geom_bind.T, post.T)
     return SkinBinding(idx, wts, col, skel_path, anim_query.GetPrim().GetPath().pathString, method,
-                       _anim_range(anim_query))
+                       _anim_range(anim_query), dual)
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    w1, x1, y1, z1 = np.moveaxis(a, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(b, -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+
+
+def dual_quaternion_inputs(joint_col: np.ndarray, pre: np.ndarray, post: np.ndarray):
+    """(dq (J, 8), stretch (J, 3, 3), pre, post) for dual-quaternion skinning from (J, 4, 4)
+    column-vector joint skinning matrices (bind -> skeleton space): each 3x3 is split as
+    ``R @ P`` (polar: ``R`` a rotation, ``P`` symmetric, applied first, as UsdSkel's DQS applies the
+    scale part before the rigid part); ``R`` and the translation form a unit dual quaternion
+    (real w, x, y, z, dual w, x, y, z)."""
+    from usd_gs.gaussians import matrix_to_quaternion
+
+    a = joint_col[:, :3, :3]
+    u, _, vt = np.linalg.svd(a)
+    r = u @ vt
+    neg = np.linalg.det(r) < 0
+    if neg.any():
+        u[neg, :, 2] *= -1
+        r = u @ vt
+    stretch = np.transpose(r, (0, 2, 1)) @ a
+    q = matrix_to_quaternion(r)
+    t = np.concatenate([np.zeros((len(a), 1)), joint_col[:, :3, 3]], axis=1)
+    dual = 0.5 * _quat_mul(t, q)
+    return (np.ascontiguousarray(np.concatenate([q, dual], axis=1)), np.ascontiguousarray(stretch),
+            np.ascontiguousarray(pre), np.ascontiguousarray(post))
+
+
+def dq_positions(points: np.ndarray, joint_indices: np.ndarray, weights: np.ndarray, dual) -> np.ndarray:
+    """(N, 3) float64 centres under dual-quaternion skinning (numpy; the kernel's position math)."""
+    dq, stretch, pre, post = dual
+    p = points @ pre[:3, :3].T + pre[:3, 3]
+    w = weights.astype(np.float64)
+    best = joint_indices[np.arange(len(w)), np.argmax(w, axis=1)]
+    sign = np.where(np.einsum("nkc,nc->nk", dq[joint_indices, :4], dq[best, :4]) < 0, -1.0, 1.0)
+    blend = np.einsum("nk,nkc->nc", w * sign, dq[joint_indices])
+    sp = np.einsum("nk,nkij,nj->ni", w, stretch[joint_indices], p)
+    real, du = blend[:, :4], blend[:, 4:]
+    ln = np.linalg.norm(real, axis=1, keepdims=True)
+    ok = ln[:, 0] >= 1e-10
+    real = np.where(ok[:, None], real / np.where(ok[:, None], ln, 1.0), [1.0, 0, 0, 0])
+    du = np.where(ok[:, None], du / np.where(ok[:, None], ln, 1.0), 0.0)
+    du = du - np.sum(real * du, axis=1, keepdims=True) * real
+    conj = real * [1.0, -1, -1, -1]
+    t = 2.0 * _quat_mul(du, conj)[:, 1:]
+    from usd_gs.gaussians import quaternion_to_matrix
+
+    q = np.einsum("nij,nj->ni", quaternion_to_matrix(real), sp) + t
+    return q @ post[:3, :3].T + post[:3, 3]
 
 
 def animation_range(prim: Usd.Prim) -> tuple[float, float] | None:
@@ -284,7 +347,8 @@ def sh_rotation_tables(degree: int):
     return out
 
 
-def skin_arrays(rest: GaussianSet, joint_indices: np.ndarray, weights: np.ndarray, skinning: np.ndarray):
+def skin_arrays(rest: GaussianSet, joint_indices: np.ndarray, weights: np.ndarray, skinning: np.ndarray,
+                dual=None):
     """Kernel call on a rest :class:`GaussianSet`: (positions, orientations, scales, sh, rotations)
     float32 (``numba_kernels.skinning.skin_gaussians``)."""
     from numba_kernels.skinning import skin_gaussians
@@ -294,13 +358,14 @@ def skin_arrays(rest: GaussianSet, joint_indices: np.ndarray, weights: np.ndarra
     return skin_gaussians(np.ascontiguousarray(rest.positions, f), np.ascontiguousarray(rest.orientations, f),
                           np.ascontiguousarray(rest.scales, f), np.ascontiguousarray(rest.sh, f),
                           np.ascontiguousarray(joint_indices, np.int32), np.ascontiguousarray(weights, f),
-                          np.ascontiguousarray(skinning, np.float64), dirs, pinv)
+                          np.ascontiguousarray(skinning, np.float64), dirs, pinv, dual)
 
 
 def skin_gaussian_set(rest: GaussianSet, binding: SkinBinding, label: str | None = None) -> GaussianSet:
     """The skinned :class:`GaussianSet` (opacities and extras kept; raw log-scales dropped,
     raw logits kept)."""
-    pos, quat, scales, sh, _ = skin_arrays(rest, binding.joint_indices, binding.weights, binding.skinning)
+    pos, quat, scales, sh, _ = skin_arrays(rest, binding.joint_indices, binding.weights, binding.skinning,
+                                           binding.dual)
     return GaussianSet(pos, quat, scales, rest.opacities, sh, None, rest.logit_opacities, dict(rest.extras),
                        label=label or rest.label)
 
@@ -312,7 +377,7 @@ def read_skinned(prim: Usd.Prim, rest: GaussianSet, time=None, world: bool = Tru
 
 
 def skinned_bounds(prim: Usd.Prim, rest_positions: np.ndarray, pad: np.ndarray, time=None):
-    """World (min, max) of the LBS-skinned centres at ``time``, grown by ``pad`` (3,) (the rest
+    """World (min, max) of the skinned centres at ``time``, grown by ``pad`` (3,) (the rest
     extent's margin around the centres); numpy only (describe stays numba-free)."""
     binding = evaluate_binding(prim, len(rest_positions), time, world=True)
     n = len(rest_positions)
@@ -324,6 +389,11 @@ def skinned_bounds(prim: Usd.Prim, rest_positions: np.ndarray, pad: np.ndarray, 
     step = 65536
     for a in range(0, n, step):
         sl = slice(a, min(n, a + step))
+        if binding.dual is not None:
+            q = dq_positions(p[sl], binding.joint_indices[sl], binding.weights[sl], binding.dual)
+            lo = np.minimum(lo, q.min(axis=0))
+            hi = np.maximum(hi, q.max(axis=0))
+            continue
         blend = np.einsum("nk,nkij->nij", binding.weights[sl].astype(np.float64),
                           binding.skinning[binding.joint_indices[sl]])
         q = np.einsum("nij,nj->ni", blend[:, :3, :3], p[sl]) + blend[:, :3, 3]
