@@ -25,7 +25,8 @@ def cmd_rig(args) -> int:
         res = rig_avatar(args.avatar, args.skin, args.output, skeleton=args.skeleton, weights=args.weights,
                          motion=args.motion, joint_map=args.joint_map, up=args.up, facing=args.facing,
                          align_matrix=matrix, influences=args.influences, max_distance=args.max_distance,
-                         fps=args.fps, motion_up=args.motion_up, icp_iterations=args.icp_iterations, log=say)
+                         fps=args.fps, motion_up=args.motion_up, icp_iterations=args.icp_iterations,
+                         skinning_method=args.skinning_method, log=say)
     for w in caught:
         if not args.quiet:
             print(f"warning: {w.message}")
@@ -71,6 +72,9 @@ def register_rig(sub, formatter):
                    help="metres: Gaussians farther from the skin take the nearest vertex's weights")
     p.add_argument("--motion-up", default="auto", help="the BVH's up axis (+y, +z or auto)")
     p.add_argument("--fps", type=float, default=24.0, help="time codes per second of the output")
+    p.add_argument("--skinning-method", choices=("lbs", "dq"), default="lbs",
+                   help="linear blend skinning, or dual quaternions (primvars:skel:skinningMethod dualQuaternion: "
+                        "no volume loss where joints twist)")
     p.add_argument("-o", "--output", required=True, help="output stage (.usda, .usd, .usdc)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=cmd_rig)

@@ -710,11 +710,13 @@ def stretched_share(rest: GaussianSet, skinned: GaussianSet, threshold: float = 
 def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, joint_map=None,
                up: str = "+y", facing: str = "auto", align_matrix: np.ndarray | None = None,
                influences: int = 4, max_distance: float = 0.05, fps: float = FPS, prim_path: str = "/Avatar",
-               motion_up: str = "auto", icp_iterations: int = 10, log=None) -> RigResult:
+               motion_up: str = "auto", icp_iterations: int = 10, skinning_method: str = "lbs",
+               log=None) -> RigResult:
     """Bind ``avatar`` to ``skin`` and write ``output`` (module docstring). Stage layout:
     ``/Avatar`` SkelRoot (usdgs role avatar on the Gaussians), ``/Avatar/Skeleton``,
     ``/Avatar/Skeleton/Motion`` SkelAnimation, ``/Avatar/Gaussians`` (bind-pose Gaussians, bound).
-    Y-up, metres, ``timeCodesPerSecond`` = ``fps``, frames 1..T."""
+    Y-up, metres, ``timeCodesPerSecond`` = ``fps``, frames 1..T. ``skinning_method`` ``dq`` authors
+    ``primvars:skel:skinningMethod`` dualQuaternion (UsdSkel's dual-quaternion skinning)."""
     from pxr import Sdf, UsdGeom, UsdSkel
 
     from usd_gs.usd import skel as uskel
@@ -722,6 +724,8 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     from usd_gs.usd.schema import apply_role
 
     say = log or (lambda msg: None)
+    if skinning_method not in ("lbs", "dq"):
+        raise UserError(f"--skinning-method must be lbs or dq, not '{skinning_method}'")
     src = load_source(skin, skeleton, weights)
     gs = read_avatar(avatar)
     if gs.count == 0:
@@ -779,7 +783,9 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
                            rots, sc)
     prim = write_gaussian_prim(stage, f"{prim_path}/Gaussians", rig_gs, keep_raw=False)
     apply_role(prim, "avatar")
-    uskel.bind_prim(prim, sk, idx, wts)
+    binding = uskel.bind_prim(prim, sk, idx, wts)
+    if skinning_method == "dq":
+        binding.CreateSkinningMethodAttr().Set(UsdSkel.Tokens.dualQuaternion)
     # the rest-pose extent is what UsdSkel-unaware tools see; skinned bounds come from describe
     save_stage_atomic(stage, output)
     result = RigResult(Path(output), rig_gs.count, len(joints), len(times), far, info, notes=list(src.notes))
