@@ -67,9 +67,9 @@ def _basis(x, y, z, out):
 
 @njit(cache=True, inline="always")
 def _polar9(a00, a01, a02, a10, a11, a12, a20, a21, a22):
-    """Orthogonal polar factor of a 3x3 (row-major scalars) by Newton's iteration with determinant
-    scaling, ``X <- (g X + X^-T / g) / 2``, ``g = |det X|^(-1/3)``, until the update is below 1e-12
-    (relative; at most 40 steps). Returns (det(A), r00..r22); det(A) = 0.0 flags a degenerate or
+    """Orthogonal polar factor of a 3x3 (row-major scalars) by Newton's iteration
+    ``X <- (g X + X^-T / g) / 2`` (``g = |det X|^(-1/3)`` on the first step, 1 after), until the
+    update is below 1e-12 (at most 40 steps). Returns (det(A), r00..r22); det(A) = 0.0 flags a degenerate or
     reflected input (det <= 1e-12 |A|_F^3), the rotation is then the identity."""
     fro2 = (a00 * a00 + a01 * a01 + a02 * a02 + a10 * a10 + a11 * a11 + a12 * a12
             + a20 * a20 + a21 * a21 + a22 * a22)
@@ -79,7 +79,7 @@ def _polar9(a00, a01, a02, a10, a11, a12, a20, a21, a22):
         return 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     x00, x01, x02, x10, x11, x12, x20, x21, x22 = a00, a01, a02, a10, a11, a12, a20, a21, a22
     d = det
-    for _ in range(40):
+    for it in range(40):
         # cofactor matrix = det * inverse transpose
         c00 = x11 * x22 - x12 * x21
         c01 = x12 * x20 - x10 * x22
@@ -90,7 +90,9 @@ def _polar9(a00, a01, a02, a10, a11, a12, a20, a21, a22):
         c20 = x01 * x12 - x02 * x11
         c21 = x02 * x10 - x00 * x12
         c22 = x00 * x11 - x01 * x10
-        g = math.exp(-math.log(d) / 3.0)
+        # determinant scaling on the first step only (it removes the uniform scale; later steps
+        # start near a rotation, where plain Newton converges quadratically)
+        g = math.exp(-math.log(d) / 3.0) if it == 0 else 1.0
         h = 0.5 * g
         f = 0.5 / (g * d)
         n00, n01, n02 = h * x00 + f * c00, h * x01 + f * c01, h * x02 + f * c02
