@@ -132,11 +132,12 @@ def _mat_to_quat9(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 
 @njit(cache=True)
-def _dq_affine(joint_idx, weights, i, best_j, dq, scl, pre, post):
+def _dq_affine(joint_idx, weights, i, best_j, dq, scl, pre, post, m, t, out):
     """Gaussian i's affine map (3x4, row-major scalars) under UsdSkel's dual-quaternion skinning:
     ``post @ [R_dq S | t_dq] @ pre`` with ``S = sum_k w_k scl[j_k]`` (the joints' stretch parts,
     blended linearly) and the blended dual quaternion (signs aligned with the largest-weight
-    joint's, normalised, Pluecker-corrected; identity when its real part vanishes)."""
+    joint's, normalised, Pluecker-corrected; identity when its real part vanishes). ``m``, ``t``, ``out``:
+    scratch (4, 4), (4, 4), (3, 4) float64."""
     pw, px, py, pz = dq[best_j, 0], dq[best_j, 1], dq[best_j, 2], dq[best_j, 3]
     rw = rx = ry = rz = 0.0
     dw = dx = dy = dz = 0.0
@@ -180,7 +181,6 @@ def _dq_affine(joint_idx, weights, i, best_j, dq, scl, pre, post):
     q10, q11, q12 = 2.0 * (rx * ry + rw * rz), 1.0 - 2.0 * (rx * rx + rz * rz), 2.0 * (ry * rz - rw * rx)
     q20, q21, q22 = 2.0 * (rx * rz - rw * ry), 2.0 * (ry * rz + rw * rx), 1.0 - 2.0 * (rx * rx + ry * ry)
     # m = [Q S | t] (3x4), then post @ m @ pre
-    m = np.empty((4, 4))
     m[0, 0] = q00 * s00 + q01 * s10 + q02 * s20
     m[0, 1] = q00 * s01 + q01 * s11 + q02 * s21
     m[0, 2] = q00 * s02 + q01 * s12 + q02 * s22
@@ -193,14 +193,12 @@ def _dq_affine(joint_idx, weights, i, best_j, dq, scl, pre, post):
     m[0, 3], m[1, 3], m[2, 3] = tx, ty, tz
     m[3, 0] = m[3, 1] = m[3, 2] = 0.0
     m[3, 3] = 1.0
-    t = np.empty((4, 4))
     for u in range(4):
         for v in range(4):
             acc = 0.0
             for k in range(4):
                 acc += m[u, k] * pre[k, v]
             t[u, v] = acc
-    out = np.empty((3, 4))
     for u in range(3):
         for v in range(4):
             acc = 0.0
@@ -220,6 +218,7 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
     ybuf = np.empty(16)
     ymat = np.empty((m, 16))
     dmat = np.empty((7, 7))
+    dq_m, dq_t, dq_out = np.empty((4, 4)), np.empty((4, 4)), np.empty((3, 4))
     for i in range(lo, hi):
         a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = a20 = a21 = a22 = a23 = 0.0
         best_w = -1.0
@@ -245,7 +244,7 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
                 a23 += w * skin[j, 2, 3]
         if mode == 1:
             a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23 = _dq_affine(
-                joint_idx, weights, i, best_j, dq, scl, pre, post)
+                joint_idx, weights, i, best_j, dq, scl, pre, post, dq_m, dq_t, dq_out)
         px, py, pz = float(rest_pos[i, 0]), float(rest_pos[i, 1]), float(rest_pos[i, 2])
         out_pos[i, 0] = a00 * px + a01 * py + a02 * pz + a03
         out_pos[i, 1] = a10 * px + a11 * py + a12 * pz + a13
