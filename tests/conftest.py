@@ -6,8 +6,17 @@ import hashlib
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from usd_gs.cli import main
+
+# Fuzz tests (tests/test_fuzz_*.py): a fixed, small number of examples so the suite stays within its
+# time budget; 'ci' is loaded by default, pass --hypothesis-profile dev for a longer local run.
+settings.register_profile("ci", max_examples=12, deadline=None, derandomize=True, print_blob=True,
+                          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+settings.register_profile("dev", max_examples=200, deadline=None,
+                          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+settings.load_profile("ci")
 
 
 def _digests(folder: Path) -> dict[str, str]:

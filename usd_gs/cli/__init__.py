@@ -50,7 +50,7 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
 
 
 # Modules that define subcommands; each has ``REGISTRARS``: functions (subparsers, formatter).
-COMMAND_MODULES = ("io", "demo", "process", "render", "farm", "eval", "bench", "rig")
+COMMAND_MODULES = ("io", "demo", "process", "render", "farm", "eval", "bench", "rig", "warmup")
 
 
 #: Commands that read a USD stage (they get ``--allow-missing``).
@@ -80,6 +80,20 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``usdgs`` console script; returns the process exit code."""
     argv = _join_negative_values(sys.argv[1:] if argv is None else list(argv))
+    previous = _handle_sigterm()  # first: a SIGTERM during start-up is handled too
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as exc:  # before the command started: nothing was written
+        print("usdgs: " + ("terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"), file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if previous is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: list[str]) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
@@ -88,7 +102,6 @@ def main(argv: list[str] | None = None) -> int:
     from usd_gs.usd.stage import set_allow_missing
 
     set_allow_missing(bool(getattr(args, "allow_missing", False)))
-    previous = _handle_sigterm()
     try:
         return int(args.handler(args) or 0)
     except UserError as exc:
@@ -122,11 +135,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"usdgs {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
               "(run with --debug for the traceback)", file=sys.stderr)
         return 1
-    finally:
-        if previous is not None:
-            import signal
-
-            signal.signal(signal.SIGTERM, previous)
 
 
 #: Options whose value may start with '-' (a negative frame or time): ``--frames -2:-1`` is read as

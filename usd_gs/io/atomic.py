@@ -27,9 +27,6 @@ from pathlib import Path
 TEMP_NAME = re.compile(r"^\..*\.tmp(?P<pid>\d+)-(?P<host>[0-9a-f]{6})(?:\.[A-Za-z0-9_]+)?(?:\.[^.]+)?$"
                        r"|^\..*_probes\.tmp(?P<pid2>\d+)$")  # the second: probe folders of older versions
 
-_swept: set[str] = set()
-
-
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -60,14 +57,11 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def remove_stale_temps(folder, force: bool = False) -> list[str]:
+def remove_stale_temps(folder) -> list[str]:
     """Remove the temporary files and folders in ``folder`` (not recursive) left by killed
-    processes of this host (:data:`TEMP_NAME`, pid no longer running). Each folder is swept once
-    per process unless ``force``. Returns the names removed; errors are ignored."""
+    processes of this host (:data:`TEMP_NAME`, pid no longer running). Returns the names
+    removed; errors are ignored. Costs one directory listing."""
     folder = os.path.abspath(os.fspath(folder))
-    if not force and folder in _swept:
-        return []
-    _swept.add(folder)
     removed = []
     here = host_tag()
     try:

@@ -230,7 +230,7 @@ def read_ply(path) -> GaussianSet:
         prop = f", property '{exc.prop.name}'" if exc.prop is not None else ""
         what = "file is truncated" if "end-of-file" in exc.message else exc.message
         raise InputFormatError(f"{label}: element '{elt}'{prop}: {what}{where}") from None
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError, UnicodeDecodeError, OverflowError) as exc:  # Overflow: ASCII -1 for a uchar
         raise InputFormatError(f"{label}: cannot be read as PLY ({exc})") from None
 
     names_elt = [e.name for e in ply.elements]
