@@ -50,8 +50,9 @@ def run_eval(stage_path: str, camera=None, frames=None, width: int = 960, radius
 
     if matte not in ("caster", "stage"):
         raise UserError(f"--matte must be 'caster' or 'stage', got '{matte}'")
-    if width < 16:
-        raise UserError(f"--width must be >= 16, got {width}")
+    from usd_gs.resources import check_limit
+
+    check_limit("eval_width", width, "--width")
     if not radius > 0:
         raise UserError(f"--radius must be > 0, got {radius}")
     ctx = open_eval_stage(stage_path, camera=camera, avatar=avatar, width=width)
@@ -136,7 +137,8 @@ def register_eval(sub, formatter):
     p.add_argument("--frames", help="frames: A-B, A:B:STEP, N or a comma list (default: at most 8 frames spread "
                                     "over the stage's range)")
     p.add_argument("--avatar", metavar="PATH", help="the avatar whose guide mesh is used (default: the first)")
-    p.add_argument("--width", type=int, default=960, help="image width in pixels (height from the camera aperture)")
+    p.add_argument("--width", type=int, default=960,
+                   help="image width in pixels, 16..8192 (height from the camera aperture)")
     p.add_argument("--radius", type=float, default=2.0, help="ROI half-size R in metres around the avatar")
     p.add_argument("--matte", choices=("caster", "stage"), default="caster", help="where S comes from (above)")
     p.add_argument("--config", help="JSON DGSM options as for 'usdgs process --config' (matte 'caster')")
