@@ -17,8 +17,10 @@ Skin sources (:class:`RigSource`):
 Alignment (:func:`align_to_mesh`): the Gaussians' up axis is turned to +Y, their facing to +Z
 (auto: the toes point forward, detected from the lowest 4 % of the centres), uniform scale from
 the robust height (0.2 / 99.8 percentiles), feet and horizontal centre matched, then a few
-similarity ICP iterations against the mesh's vertices (outliers beyond 3 median distances
-ignored). An explicit matrix replaces all of it.
+similarity ICP iterations against the closest surface points (outliers beyond 3 median distances
+ignored), and a last vertical shift that puts the robust bottom (0.2 percentile) of the centres
+on the skin's lowest point (the fit pairs shoes and clothes with the bare skin and tends to lift
+the capture). An explicit matrix replaces all of it.
 
 Weight transfer (:func:`transfer_weights`): closest point on the skin (candidates: the 12 nearest
 triangle centroids and the faces of the nearest vertex, exact point-triangle distances from
@@ -371,6 +373,10 @@ def align_to_mesh(gs: GaussianSet, vertices: np.ndarray, up: str = "+y", facing:
         m = step @ m
         if np.abs(step - np.eye(4)).max() < 1e-6:  # converged (sub-micrometre update)
             break
+    # feet on the floor: the fit pairs shoes and clothes with the bare skin and may lift the capture
+    y = (p @ m[:3, :3].T + m[:3, 3])[:, 1]
+    m[1, 3] -= np.percentile(y, 0.2) - vertices[:, 1].min() if faces is None else \
+        np.percentile(y, 0.2) - vertices[np.unique(faces), 1].min()
     resid = float(np.median(closest(sample @ m[:3, :3].T + m[:3, 3])[1]))
     scale = float(abs(np.linalg.det(m[:3, :3])) ** (1 / 3))
     return m, {"scale": scale, "facing": f.tolist(), "median_distance_m": resid}
@@ -559,7 +565,7 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     BVH bone's rest direction (the child offset, when the BVH joint has one child); unmapped joints
     keep their rest orientation relative to the parent. The root's translation follows the BVH
     root relative to its first frame (the first frame stands at the bind pose's root position),
-    scaled by the ratio of rest hip heights.
+    scaled by the ratio of rest hip heights (:func:`ground_motion` then puts the feet on the floor).
     BVH up axis: ``auto`` (the rest pose's root -> head direction) or +y/+z. Frames are sampled at
     ``fps`` (nearest BVH frame). ``in_place`` drops the root's horizontal motion (a walk on the spot).
     """
@@ -662,6 +668,25 @@ def retarget_bvh(src: RigSource, bvh, joint_map: dict | None = None, fps: float 
     return times, local
 
 
+def ground_motion(local: np.ndarray, parents: np.ndarray, bind: np.ndarray, points: np.ndarray,
+                  joint_indices: np.ndarray, weights: np.ndarray) -> float:
+    """Shift the root joints' translations (``local`` (T, J, 4, 4), in place) vertically so that
+    the lowest skinned ``points`` (the 2 % lowest in the bind pose: the soles) sit, in the median
+    frame, as high as in the bind pose: a retargeted walk's stance foot on the floor. Returns the
+    shift in metres (subtracted)."""
+    y = points[:, 1]
+    low = y <= np.percentile(y, 2.0)
+    glob = np.zeros_like(local)
+    for j, p in enumerate(parents):
+        glob[:, j] = local[:, j] if p < 0 else glob[:, p] @ local[:, j]
+    skin = glob @ np.linalg.inv(bind)[None]
+    per_frame = [np.percentile(lbs(points[low], joint_indices[low], weights[low], skin[f])[:, 1], 10.0)
+                 for f in range(len(skin))]
+    lift = float(np.median(per_frame) - np.percentile(y[low], 10.0))
+    local[:, parents < 0, 1, 3] -= lift
+    return lift
+
+
 # ----------------------------------------------------------------------------- stage
 @dataclass
 class RigResult:
@@ -755,6 +780,9 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
             from usd_gs.io.bvh import read_bvh
 
             times, local = retarget_bvh(src, read_bvh(mp), parse_joint_map(joint_map), fps=fps, up=motion_up)
+            lift = ground_motion(local, src.parents, src.bind, rig_gs.positions.astype(np.float64), idx, wts)
+            say(f"  motion: {len(times)} frames at {fps:g} fps, root lowered by {lift * 1000:.1f} mm "
+                "(feet on the floor)")
         elif mp.suffix.lower() in (".glb", ".gltf"):
             msrc = src if Path(skin).resolve() == mp.resolve() else gltf_source(mp, fps)
             if msrc.local_frames is None:
@@ -954,6 +982,7 @@ def write_rigged_avatar_layer(frames: int, data: Path, path: Path, fps: float = 
     rig_gs = gs.transformed(m.T, label=prim_path)
     idx, wts, _, _ = transfer_weights(src, rig_gs.positions.astype(np.float64))
     times, local = retarget_bvh(src, read_bvh(files["motion"]), fps=fps, in_place=True)
+    ground_motion(local, src.parents, src.bind, rig_gs.positions.astype(np.float64), idx, wts)
     cycle = np.arange(frames) % len(times)
     local = local[cycle]
     stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")
