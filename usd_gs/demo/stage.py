@@ -167,7 +167,7 @@ class DemoOptions:
     biker_gaussians: int | None = None
     guitar_gaussians: int | None = None
     seed: int = 0
-    room_brick_size: int = 12000
+    room_brick_size: int = 500  # bricks a shadow touches are re-authored whole: small ones keep the output small
     monkey: bool = False  # add the SOG flipbook monkey (usd_gs/demo/monkey.py) as /World/Monkey
     rigged_avatar: bool = False  # add the T-pose capture rigged to MakeHuman, walking (usd_gs/demo/rig.py)
 
@@ -352,7 +352,7 @@ def _write_room(opts: DemoOptions, path: Path):
     return room
 
 
-def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path) -> int:
+def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path, walk=None) -> int:
     from pxr import Sdf, UsdGeom, UsdSkel, Vt
 
     from usd_gs.demo.mesh_avatar import posed_meshes
@@ -364,7 +364,7 @@ def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path) -> int:
     mesh = load_skinned_mesh(glb)
     times = frame_times(opts.frames)
     meshes = posed_meshes(mesh, times, loop=True)
-    where, heading = CESIUM_PATH.at(times)
+    where, heading = (walk or CESIUM_PATH).at(times)  # walk: any path with .at(t) (the outdoor demo's line)
     stage = _new_layer_stage(opts.frames)
     UsdSkel.Root.Define(stage, "/World")  # the root layer's /World is a SkelRoot too (it is the stronger opinion)
     placement = {float(f): usd_matrix(rotation_y(float(h)), p)
