@@ -9,8 +9,14 @@ Two measurements, each in a fresh numba cache (a new temporary ``NUMBA_CACHE_DIR
 - ``groups``: compiles each ``usd_gs.pipeline.jit_warmup`` group on its own in a fresh process with one
   thread (``NUMBA_NUM_THREADS=1``) and prints its total compile seconds and largest kernels.
 
+- ``install``: the install-step figure, back to back in one fresh cache: ``usdgs warmup`` (its
+  own time), then the first ``usdgs process STAGE --frames 1-4`` after it, then the same command
+  again (warm), each a fresh process; prints the three wall times and the ratio first / warm
+  (``--cold`` first times the same command in another empty cache, without the warm-up).
+
     PYTHONPATH=. .venv/bin/python benchmarks/bench_cold_start.py timeline process stages/demo.usda -o /tmp/x.usdc -q
     PYTHONPATH=. .venv/bin/python benchmarks/bench_cold_start.py groups
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_cold_start.py install [--cold] [--jobs N] [STAGE]
 """
 
 from __future__ import annotations
@@ -91,8 +97,56 @@ def timeline(argv: list[str]) -> int:
     return rc
 
 
+def _timed(argv: list[str], env: dict) -> float:
+    t = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "usd_gs.cli", *argv], env=env, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} failed (exit {r.returncode}):\n{r.stdout}{r.stderr}")
+    return time.perf_counter() - t
+
+
+def install(argv: list[str]) -> int:
+    import shutil
+
+    cold = "--cold" in argv
+    argv = [a for a in argv if a != "--cold"]
+    jobs = []
+    if "--jobs" in argv:
+        i = argv.index("--jobs")
+        jobs = ["--jobs", argv[i + 1]]
+        argv = argv[:i] + argv[i + 2:]
+    stage = argv[0] if argv else "stages/demo.usda"
+    out = tempfile.mkdtemp(prefix="usdgs_install_out_")
+    run = ["process", stage, "-o", os.path.join(out, "demo.lit.usdc"), "--frames", "1-4", "-q"]
+    base = {k: v for k, v in os.environ.items() if k not in ("USDGS_JIT_WARMUP", "NUMBA_NUM_THREADS")}
+    caches = []
+    try:
+        if cold:
+            caches.append(tempfile.mkdtemp(prefix="usdgs_cold_"))
+            t_cold = _timed(run, dict(base, NUMBA_CACHE_DIR=caches[-1]))
+        caches.append(tempfile.mkdtemp(prefix="usdgs_cold_"))
+        env = dict(base, NUMBA_CACHE_DIR=caches[-1])
+        t_warmup = _timed(["warmup", "-q", *jobs], env)
+        t_first = _timed(run, env)
+        t_warm = _timed(run, env)
+    finally:
+        for c in caches:
+            shutil.rmtree(c, ignore_errors=True)
+        shutil.rmtree(out, ignore_errors=True)
+    print(f"usdgs {' '.join(run[:2])} --frames 1-4, each a fresh process, fresh NUMBA_CACHE_DIR:")
+    if cold:
+        print(f"  cold (empty cache, no warm-up):   {t_cold:7.1f} s")
+    print(f"  usdgs warmup {' '.join(jobs) or '(default jobs)'}:{'':<13}{t_warmup:7.1f} s")
+    print(f"  first run after the warm-up:      {t_first:7.1f} s")
+    print(f"  warm run (same cache, again):     {t_warm:7.1f} s")
+    print(f"  first / warm = {t_first / t_warm:.2f}" + (f"; cold / warm = {t_cold / t_warm:.2f}" if cold else ""))
+    return 0
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
+    if args[:1] == ["install"]:
+        sys.exit(install(args[1:]))
     if args[:1] == ["groups"]:
         sys.exit(groups())
     if args[:1] == ["timeline"]:
