@@ -54,6 +54,11 @@ def test_sun_direction_and_ratio_from_the_baked_shadow(sunny):
     # the darkening of a full shadow is the sun's share of the lit ground's light: E_sun cos / (E_sun cos + E_sky)
     rc = sunny.ratio * float(sunny.sun[1])
     assert est.direct_share == pytest.approx(rc / (1 + rc), abs=0.04)
+    # in display terms (what the shadow factor multiplies): the median ground colour lit, and without the sun
+    rho = np.median(sunny.albedo[sunny.part == 0], axis=0) * sunny.exposure / np.pi
+    lit = se.srgb_to_display(rho * (np.pi + sunny.e_sun * sunny.sun[1])) @ se.LUMA
+    shade = se.srgb_to_display(rho * np.pi) @ se.LUMA
+    assert est.darkening == pytest.approx(1 - shade / lit, abs=0.03)
 
 
 def test_overcast_gives_no_confident_sun(overcast):
@@ -96,3 +101,32 @@ def test_mirror_image_and_hidden_patch_are_rejected(room):
     assert "below the floor" in by[tuple(np.round(mirror, 1))].rejected
     assert "hidden" in by[tuple(np.round(behind, 1))].rejected
     assert by[tuple(np.round(behind, 1))].visibility < 0.2
+
+
+def _tiny_stage(path, scene):
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
+
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(1)
+    apply_role(write_gaussian_prim(stage, "/World/Scene", scene, keep_raw=False), "scene")
+    rng = np.random.default_rng(0)
+    n = 400
+    pos = np.array([-1.6, 0.9, -0.4]) + rng.uniform(-1, 1, (n, 3)) * [0.2, 0.8, 0.15]
+    sh = np.zeros((n, 1, 3), np.float32)
+    av = GaussianSet(pos, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), 0.03), np.full(n, 0.8), sh)
+    apply_role(write_gaussian_prim(stage, "/World/Avatar", av, keep_raw=False), "avatar")
+    save_stage_atomic(stage, path)
+
+
+def test_lights_outdoor_on_a_closed_room_is_refused(room, tmp_path, capsys):
+    from usd_gs.cli import main
+
+    src = tmp_path / "room.usdc"
+    _tiny_stage(src, room.gaussians)
+    out = tmp_path / "out.usdc"
+    assert main(["process", str(src), "-o", str(out), "--lights", "outdoor", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "--lights outdoor" in err and "closed" in err and "sky above the horizon" in err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["room.usdc"]

@@ -52,10 +52,13 @@ def process_chunked(args, out: str, opts) -> int:
 
 
 def cmd_lights(args) -> int:
+    from pathlib import Path
+
     from usd_gs.farm.run import SHOT_FIRST_FRAME
+    from usd_gs.pipeline.capture_lights import write_lights
     from usd_gs.pipeline.options import ProcessOptions
     from usd_gs.pipeline.shot import ShotProcessor
-    from usd_gs.usd.lux import LIGHTS_ROOT, write_estimated_lights
+    from usd_gs.usd.lux import LIGHTS_ROOT
     from usd_gs.usd.output_layer import OutputLayer
     from usd_gs.usd.stage import check_usd_output_path
 
@@ -70,11 +73,17 @@ def cmd_lights(args) -> int:
     if not lights:
         raise UserError(f"{args.stage}: no lights could be estimated ({'; '.join(proc.warnings) or 'no scene'})")
     with OutputLayer.create(args.stage, args.output) as out:
-        write_estimated_lights(out.stage, lights)
+        target = Path(args.output)
+        sky = target.with_name(target.stem + "_sky.exr")
+        write_lights(proc, out.stage, lights, sky, f"./{sky.name}")
         # the shot's first frame: chunk tasks anchor the avatars' normals there (usd_gs.farm.run)
         out.stage.GetPrimAtPath(LIGHTS_ROOT).SetCustomDataByKey(SHOT_FIRST_FRAME, float(proc.frames[0]))
     if not args.quiet:
         print_lights(lights)
+        for line in proc.capture_lines:
+            print(line)
+        for w in proc.warnings:
+            print(f"warning: {w}")
         print(f"wrote {args.output} (sublayers {args.stage}); run the chunks on it with --lights stage")
     return 0
 
@@ -99,7 +108,8 @@ def register_lights(sub, formatter):
     p.add_argument("stage", help="input USD stage")
     p.add_argument("-o", "--output", required=True, help="lights layer to write (.usda/.usdc)")
     p.add_argument("--frames", help="frames the estimate is for (default: the stage's range)")
-    p.add_argument("--lights", help="number of lights to estimate (default 2; 'auto' refuses stages with lights)")
+    p.add_argument("--lights", help="'auto' (open captures: sun and sky, closed: 2 point lights; refuses stages "
+                                    "with lights), 'outdoor', 'indoor' or a number of point lights (default auto)")
     add_role_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=cmd_lights)

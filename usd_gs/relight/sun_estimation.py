@@ -31,14 +31,19 @@ prims' transforms first), positions in scene units, distances of the configs in 
    (``shading_direction``, ``shading_angle_deg``: evidence only).
 3. Sun-to-sky ratio from lit (``T > 0.9``) and shadowed (``T < 0.1``) receivers of that
    surface: ``Y_lit / Y_shadow = (V_lit + Rc) / V_shadow`` with ``Rc = E_sun cos / E_sky``
-   (medians, per channel; with V = 1 this is ``L_lit / L_shadow = 1 + E_sun cos / E_sky``).
+   (medians, per channel, with the two sets' sky visibility from a denser hemisphere of
+   ``ratio_directions``; with V = 1 this is ``L_lit / L_shadow = 1 + E_sun cos / E_sky``).
    Absolute scale and colour (the capture gives ratios only): the lit ground's total light is
    white with irradiance pi (a white surface in the capture's full light shows radiance 1), so
    per channel ``E_sky = pi / (V_lit + Rc)`` (horizontal irradiance of the unoccluded sky,
    uniform sky radiance ``E_sky / pi``) and ``E_sun = Rc E_sky / cos`` (irradiance at normal
    incidence). ``ratio = lum(E_sun) / lum(E_sky)``. The sun's share of a lit receiver's
    light, ``direct_share = Rc / (V_lit + Rc)``, is the darkening a full new shadow causes there
-   (``1 - L_shadow / L_lit`` of the capture's own shadows).
+   (``1 - L_shadow / L_lit`` of the capture's own shadows, linear); ``darkening`` is the same in
+   display-referred luminance (``1 - Y'_shadow / Y'_lit`` of the sRGB-encoded median lit colour
+   and that colour without the sun's share): the factor the main job applies to the display
+   colours it shadows (``usd_gs.shadows.shading``), so a new full shadow on lit ground has the
+   display luminance of the capture's own shadows there.
 4. :func:`plausible_emitters` (closed captures): a point-light candidate must be visible from
    the avatars' region through the scene's own DGSM (its emitter Gaussians left out) and must
    not lie below the floor it would light; rejected candidates keep their reason.
@@ -67,6 +72,12 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+def srgb_to_display(x: np.ndarray) -> np.ndarray:
+    """sRGB encode (IEC 61966-2-1) of linear values, clipped to [0, 1] first; float64."""
+    x = np.clip(np.asarray(x, np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
 def linear_colors(g: GaussianSet) -> np.ndarray:
     """(N, 3) float64 linear RGB of the Gaussians' view-independent (DC) display colour."""
     return srgb_to_linear(0.5 + SH_C0 * g.sh[:, 0].astype(np.float64))
@@ -89,7 +100,9 @@ class CaptureConfig:
     receivers, ``fine_cell`` (0.04 m), ``fine_steps_deg`` (4, 1.3, 0.45) with ``fine_half``
     (2, 1, 1): (2h+1)^2 directions per grid, re-centred while the best lies on the grid's edge (at most 3
     times); ``fine_seeds`` (2) best separated coarse directions;
-    ``score_threshold`` (0.25), ``min_direct_share`` (0.25), ``min_set`` (30), ``k_sigma`` (3).
+    ``score_threshold`` (0.25), ``min_direct_share`` (0.25), ``min_set`` (30), ``k_sigma`` (3);
+    the lit/shadow ratio reads the sky visibility of up to ``ratio_receivers`` (3000) receivers
+    of its two sets over ``ratio_directions`` (256) directions.
     closed: ``emitter_radius`` (0.25 m: the candidate's own Gaussians, left out of the
     visibility test), ``min_visibility`` (0.2), ``visibility_offset`` (0.5 m: the avatar region's
     sample points around the centre), ``floor_margin`` (0.05 m).
@@ -121,6 +134,8 @@ class CaptureConfig:
     score_threshold: float = 0.25
     min_direct_share: float = 0.25
     min_set: int = 30
+    ratio_receivers: int = 3000
+    ratio_directions: int = 256
     k_sigma: float = 3.0
     emitter_radius: float = 0.25
     min_visibility: float = 0.2
@@ -452,6 +467,7 @@ class SunEstimate:
     reasons: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     ground_height: float | None = None
+    darkening: float = 0.0
 
     @property
     def propagation(self) -> np.ndarray:
@@ -462,7 +478,8 @@ class SunEstimate:
                 "elevation_deg": round(self.elevation_deg, 2), "azimuth_deg": round(self.azimuth_deg, 2),
                 "sun_sky_ratio": round(float(self.ratio), 4),
                 "lit_over_shadow_minus_1": round(float(self.ratio_cos), 4),
-                "direct_share": round(float(self.direct_share), 4), "lit_receivers": int(self.n_lit),
+                "direct_share": round(float(self.direct_share), 4),
+                "display_darkening": round(float(self.darkening), 4), "lit_receivers": int(self.n_lit),
                 "shadow_receivers": int(self.n_shadow), "receivers": int(self.n_receivers),
                 "shading_angle_deg": None if self.shading_angle_deg is None else round(self.shading_angle_deg, 2),
                 "failed": "; ".join(self.reasons)}
@@ -472,8 +489,9 @@ class SunEstimate:
         state = "confident" if self.confident else f"LOW CONFIDENCE ({'; '.join(self.reasons)}): not used as a sun"
         chk = "" if self.shading_angle_deg is None else f", shading check {self.shading_angle_deg:.0f} deg off"
         return (f"sun: towards ({s[0]:.3f}, {s[1]:.3f}, {s[2]:.3f}), elevation {self.elevation_deg:.1f} deg, azimuth "
-                f"{self.azimuth_deg:.1f} deg, score {self.score:.2f}, sun/sky {self.ratio:.2f}, darkening in its "
-                f"shadow {self.direct_share:.2f} ({self.n_lit} lit / {self.n_shadow} shadowed receivers){chk}: "
+                f"{self.azimuth_deg:.1f} deg, score {self.score:.2f}, sun/sky {self.ratio:.2f}, its share of the "
+                f"lit ground's light {self.direct_share:.2f} (display darkening {self.darkening:.2f}; "
+                f"{self.n_lit} lit / {self.n_shadow} shadowed receivers){chk}: "
                 f"{state}")
 
 
@@ -563,7 +581,20 @@ def estimate_sun(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit
     timings["fine"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    est = _sun_and_sky(best_s, best_score, best_t.astype(np.float64), scorer.V_all, lin, up, up_axis, cfg)
+    # the sky visibility of the receivers the ratio reads, from a denser hemisphere
+    v_fine = scorer.V_all.copy()
+    sets = np.flatnonzero((best_t < 0.1) | (best_t > 0.9))
+    if sets.size:
+        pick = sets if sets.size <= cfg.ratio_receivers else np.sort(
+            np.random.default_rng(2).choice(sets, cfg.ratio_receivers, replace=False))
+        dense = fibonacci_hemisphere(cfg.ratio_directions, up, 1.0)
+        td = _dense_transmittance(scorer, dense, pick, cfg)
+        cw = dense @ up
+        v_fine[pick] = (td @ cw) / cw.sum()
+        keep = np.zeros(len(v_fine), bool)
+        keep[pick] = True
+        best_t = np.where(keep, best_t, 0.5)  # only receivers with a dense V enter the sets
+    est = _sun_and_sky(best_s, best_score, best_t.astype(np.float64), v_fine, lin, up, up_axis, cfg, pts)
     est.n_receivers = int(split.recv.size)
     est.ground_height = split.height
     v = _shading_check(scene, split.casters if split.casters.size else split.recv, up, centre)
@@ -587,17 +618,25 @@ def _nearest_values(points: np.ndarray, ref: np.ndarray, values: np.ndarray) -> 
     return values[k]
 
 
-def _sun_and_sky(s, score, t, V, lin, up, up_axis, cfg) -> SunEstimate:
+def _dense_transmittance(scorer: _Scorer, dirs: np.ndarray, rows: np.ndarray, cfg: CaptureConfig) -> np.ndarray:
+    """(len(rows), D) float64 transmittance of receivers ``rows`` for sun directions ``dirs``."""
+    from numba_kernels.sun_shadow import transmittance_directions
+
+    occ, dep, cov6 = scorer.full
+    return transmittance_directions(-dirs, occ, dep, cov6, scorer.points[rows], cfg.k_sigma,
+                                    cfg.coarse_cell).astype(np.float64)
+
+
+def _sun_and_sky(s, score, t, V, lin, up, up_axis, cfg, pts=None) -> SunEstimate:
     lit = (t > 0.9) & (V > 0.7)
     sh = t < 0.1
     reasons = []
     cos = max(float(s @ up), 1e-3)
     if lit.sum() >= cfg.min_set and sh.sum() >= cfg.min_set:
+        vl = float(np.median(V[lit]))
         yl = np.median(lin[lit], axis=0)
         ys = np.maximum(np.median(lin[sh], axis=0), 1e-6)
-        vl = float(np.median(V[lit]))
-        vs = float(np.median(V[sh]))
-        rc = np.maximum(yl / ys * vs - vl, 0.0)
+        rc = np.maximum(yl / ys * float(np.median(V[sh])) - vl, 0.0)
     else:
         reasons.append(f"too few lit/shadowed receivers ({int(lit.sum())}/{int(sh.sum())}, need {cfg.min_set})")
         vl = float(np.median(V))
@@ -614,8 +653,15 @@ def _sun_and_sky(s, score, t, V, lin, up, up_axis, cfg) -> SunEstimate:
     ground = np.mean(lin, axis=0)
     sky = SkyEstimate(e_sky / np.pi, ground, up_axis)
     el, az = elevation_azimuth(s, up_axis)
+    # display-referred darkening of a full new shadow on lit ground: the sun's share of each
+    # channel removed from the median lit colour, in display luminance (what the colours hold)
+    yl_lin = np.median(lin[lit], axis=0) if lit.any() else np.median(lin, axis=0)
+    share_c = rc / np.maximum(vl + rc, 1e-12)
+    disp_lit = float(LUMA @ srgb_to_display(yl_lin))
+    disp_sh = float(LUMA @ srgb_to_display(yl_lin * (1.0 - share_c)))
+    darkening = 1.0 - disp_sh / disp_lit if disp_lit > 0 else 0.0
     return SunEstimate(np.asarray(s, np.float64), float(score), not reasons, e_sun, sky, ratio, rc_l, float(share),
-                       int(lit.sum()), int(sh.sum()), 0, None, None, el, az, reasons)
+                       int(lit.sum()), int(sh.sum()), 0, None, None, el, az, reasons, darkening=float(darkening))
 
 
 def overcast_sky(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit: float = 1.0,

@@ -340,3 +340,102 @@ def write_estimated_lights(stage, lights: list[ShotLight], radius: float = 0.05,
             prim.SetCustomDataByKey("usdgs:score", float(light.score))
         paths.append(path)
     return paths
+
+
+def _custom_value(v):
+    """A customData-safe value: numbers, strings, bools, flat lists of numbers; None -> ''."""
+    if v is None:
+        return ""
+    if isinstance(v, (bool, str)):
+        return v
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    a = np.asarray(v, np.float64).ravel()
+    from pxr import Vt
+
+    return Vt.DoubleArray([float(x) for x in a])
+
+
+def direction_orient(direction) -> tuple:
+    """(w, x, y, z) unit quaternion of a rotation whose local -Z axis maps to unit ``direction``."""
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    z = -d
+    h = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(h, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    r = np.stack([x, y, z], axis=1)  # columns: world images of the local axes
+    w = math.sqrt(max(1.0 + r[0, 0] + r[1, 1] + r[2, 2], 1e-12)) / 2.0
+    if w > 1e-3:
+        return (w, (r[2, 1] - r[1, 2]) / (4 * w), (r[0, 2] - r[2, 0]) / (4 * w), (r[1, 0] - r[0, 1]) / (4 * w))
+    k = int(np.argmax(np.diag(r)))
+    i, j = (k + 1) % 3, (k + 2) % 3
+    s = math.sqrt(max(1.0 + r[k, k] - r[i, i] - r[j, j], 1e-12)) * 2.0
+    q = np.zeros(4)
+    q[0] = (r[j, i] - r[i, j]) / s
+    q[1 + k] = s / 4.0
+    q[1 + i] = (r[i, k] + r[k, i]) / s
+    q[1 + j] = (r[j, k] + r[k, j]) / s
+    return tuple(q / np.linalg.norm(q))
+
+
+def write_capture_lights(stage, lights: list[ShotLight], evidence: dict | None = None, textures: dict | None = None,
+                         root: str = LIGHTS_ROOT, up_axis: str = "Y") -> list[str]:
+    """Author the lights estimated from a capture (``usd_gs.pipeline.capture_lights``) under ``root``:
+
+    - ``kind='directional'``: a ``DistantLight`` ``<root>/<name>`` oriented by an ``orient`` op
+      (local -Z along the light's propagation direction), ``inputs:angle``, ``inputs:normalize =
+      true`` with ``intensity * color`` the irradiance at normal incidence;
+    - ``kind='dome'``: a ``DomeLight`` ``<root>/<name>`` with ``inputs:texture:file`` =
+      ``textures[name]`` (a lat-long EXR, ``inputs:texture:format = latlong``), rotated +90 deg
+      about X on a Z-up stage (the texture's pole is its +Y);
+    - point lights: as :func:`write_estimated_lights` (``<root>/Light_<i>`` SphereLights).
+
+    ``evidence``: ``{light name: {key: value}}`` written as ``customData`` ``usdgs:<key>`` (score,
+    direct share, the estimate's figures; a ``sh`` entry of a dome is its real-SH radiance,
+    flattened), plus ``usdgs:estimated = true`` and ``usdgs:score``. ``evidence['']`` goes on
+    ``root``. Returns the light prims' paths.
+    """
+    from pxr import Gf, Sdf, UsdGeom, UsdLux
+
+    evidence = evidence or {}
+    textures = textures or {}
+    points = [lt for lt in lights if lt.kind == "point"]
+    paths = write_estimated_lights(stage, points, root=root) if points else []
+    parts = root.strip("/").split("/")
+    for i in range(len(parts)):
+        UsdGeom.Scope.Define(stage, "/" + "/".join(parts[: i + 1]))
+    for key, v in (evidence.get("") or {}).items():
+        stage.GetPrimAtPath(root).SetCustomDataByKey(f"usdgs:{key}", _custom_value(v))
+    for lt in lights:
+        if lt.kind == "point":
+            continue
+        path = f"{root}/{lt.name}"
+        if lt.kind == "directional":
+            light = UsdLux.DistantLight.Define(stage, path)
+            w, x, y, z = direction_orient(lt.direction)
+            UsdGeom.Xformable(light.GetPrim()).AddOrientOp().Set(Gf.Quatf(float(w), float(x), float(y), float(z)))
+            light.CreateAngleAttr(float(lt.angle or DEFAULT_SUN_ANGLE))
+            light.CreateNormalizeAttr(True)
+        elif lt.kind == "dome":
+            light = UsdLux.DomeLight.Define(stage, path)
+            if up_axis.upper() == "Z":
+                UsdGeom.Xformable(light.GetPrim()).AddRotateXOp().Set(90.0)
+            if lt.name in textures:
+                light.CreateTextureFileAttr(Sdf.AssetPath(textures[lt.name]))
+                light.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
+        else:
+            continue
+        light.CreateIntensityAttr(float(lt.intensity))
+        light.CreateColorAttr(Gf.Vec3f(*map(float, lt.color)))
+        prim = light.GetPrim()
+        prim.SetCustomDataByKey("usdgs:estimated", True)
+        if lt.score is not None:
+            prim.SetCustomDataByKey("usdgs:score", float(lt.score))
+        for key, v in (evidence.get(lt.name) or {}).items():
+            prim.SetCustomDataByKey(f"usdgs:{key}", _custom_value(v))
+        paths.append(path)
+    return paths

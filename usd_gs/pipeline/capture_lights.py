@@ -1,0 +1,274 @@
+"""The main job's light step for a capture without authored lights (``--lights auto|indoor|outdoor|N``).
+
+``estimate_for_shot`` decides per shot whether the capture is open or closed
+(``usd_gs.relight.sun_estimation.classify_capture``; ``--lights outdoor`` / ``indoor`` force
+it, ``N`` means closed with N lights) and returns its lights as ``ShotLight`` values:
+
+- open: a sun (``kind='directional'``, ``shape='distant'``, UsdLux ``angle`` 0.53, ``normalize``
+  so that ``sun_irradiance()`` is the estimated irradiance at normal incidence) when the
+  estimate is confident, and always the sky (``kind='dome'`` with its lat-long ``env``). A
+  low-confidence sun is not used: it is reported (and kept in the sky's customData evidence).
+- closed: paper 3.1's point lights (as before), each candidate first tested by
+  ``plausible_emitters`` (visible from the avatars' region through the scene, not below the
+  floor); rejected candidates are reported with their reason and the next one takes their place.
+
+``CaptureLights.lines`` is what ``usdgs process`` and ``usdgs lights`` print; ``direct_share``
+maps a light name to the darkening a full shadow of it causes on the display colours of lit
+receivers (the sun's ``darkening``: its measured share of the lit ground's light, expressed in
+display luminance because the shadow factor multiplies display-referred colours).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from usd_gs.errors import UserError
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
+from usd_gs.relight import sun_estimation as se
+from usd_gs.usd.lux import ShotLight
+
+OPEN_MODES = ("auto", "outdoor", "indoor")
+
+
+@dataclass
+class CaptureLights:
+    """The shot's estimated lights and what the estimate found (see the module docstring)."""
+
+    lights: list
+    decision: se.CaptureDecision | None = None
+    sun: se.SunEstimate | None = None
+    sky: se.SkyEstimate | None = None
+    rejected: list = field(default_factory=list)
+    lines: list = field(default_factory=list)
+    direct_share: dict = field(default_factory=dict)
+
+
+def _dome_axes(up_axis: str) -> np.ndarray:
+    """Columns: world images of the dome's local axes (texture +Y onto the stage's up axis)."""
+    if up_axis.upper() == "Z":
+        return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    return np.eye(3)
+
+
+def sun_light(sun: se.SunEstimate, angle: float = 0.53) -> ShotLight:
+    e = np.asarray(sun.irradiance, np.float64)
+    lum = float(se.LUMA @ e)
+    color = e / lum if lum > 0 else np.ones(3)
+    return ShotLight("Sun", "directional", np.zeros(3), np.asarray(sun.propagation, np.float64), color, lum,
+                     score=float(sun.score), shape="distant", angle=angle, normalize=True)
+
+
+def sky_light(sky: se.SkyEstimate, up_axis: str, h: int = 32, w: int = 64) -> ShotLight:
+    return ShotLight("Sky", "dome", np.zeros(3), np.array([0.0, -1.0, 0.0]), np.ones(3), 1.0, shape="dome",
+                     axes=_dome_axes(up_axis), env=sky.latlong(h, w))
+
+
+def _region(proc, frames):
+    """(centroid (3,), ground hint or None, scene GaussianSet or None) of the shot's avatars."""
+    scene = [proc.static[r.path] for r in proc.roles if r.role == "scene" and not r.per_frame]
+    if not scene:
+        return None, None, None
+    movers = [r.path for r in proc.roles if r.role == "avatar"] or [r.path for r in proc.roles if r.per_frame]
+    picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
+    sets = [proc._read(p, f) for p in movers for f in picks]
+    sets = [g for g in sets if g.count]
+    whole = GaussianSet.concatenate(scene, label="scene")
+    if not sets:
+        return alpha_weighted_centroid(whole), None, whole
+    up = se.up_vector(proc.dgsm.up_axis)
+    centroid = np.mean([alpha_weighted_centroid(g) for g in sets], axis=0)
+    hint = float(np.min([np.percentile(g.positions.astype(np.float64) @ up, 1.0) for g in sets]))
+    return centroid, hint, whole
+
+
+def estimate_for_shot(proc, frames: list, k: int) -> CaptureLights:
+    """The lights of the capture ``proc`` (a ``ShotProcessor`` after ``_open`` and
+    ``_read_static``) for ``frames``, by ``proc.opts.lights`` (module docstring). ``UserError``
+    for ``--lights outdoor`` on a capture whose sky is covered."""
+    mode = proc.opts.lights
+    centroid, hint, scene = _region(proc, frames)
+    if scene is None:
+        return CaptureLights([], lines=["capture: no static scene prim: no lights can be estimated"])
+    up_axis = proc.dgsm.up_axis
+    cfg = se.CaptureConfig()
+    cands = se.emitter_candidates(scene, centroid, max(k + 4, cfg.emitter_candidates), proc.mpu)
+    decision = None
+    if mode in OPEN_MODES:
+        decision = se.classify_capture(scene, centroid, up_axis, proc.mpu, cfg, cands)
+        if mode != "auto":
+            want = mode == "outdoor"
+            if want and decision.empty_share < cfg.open_share:
+                raise UserError(f"{proc.input_path}: --lights outdoor but the capture is closed: only "
+                                f"{decision.empty_share:.0%} of the sky above the horizon is empty around the "
+                                f"avatars (a ceiling or roof; need {cfg.open_share:.0%}); use --lights auto or indoor")
+            if want != decision.is_open:
+                decision.forced = True
+            decision.is_open = want
+            decision.mode = mode
+    if decision is not None and decision.is_open:
+        return _open_lights(proc, scene, centroid, hint, decision, up_axis)
+    return _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis)
+
+
+def _open_lights(proc, scene, centroid, hint, decision, up_axis) -> CaptureLights:
+    out = CaptureLights([], decision, lines=[decision.line()])
+    if decision.forced and decision.compact:
+        out.lines.append(f"warning: --lights outdoor although {len(decision.compact)} compact emitter(s) were found")
+    sun = se.estimate_sun(scene, centroid, up_axis, proc.mpu, ground_hint=hint)
+    if sun is None:
+        out.sky = se.overcast_sky(scene, centroid, up_axis, proc.mpu)
+        out.lines.append("sun: no flat ground near the avatars to read the capture's shadows from: sky only")
+    else:
+        out.sun, out.sky = sun, sun.sky
+        out.lines.append(sun.line())
+        out.lines.append(f"  ({sun.timings.get('builds', 0)} candidate shadow maps in "
+                         f"{sun.timings.get('total', 0.0):.1f} s)")
+        if sun.confident:
+            lt = sun_light(sun)
+            out.lights.append(lt)
+            out.direct_share[lt.name] = float(sun.darkening)
+        else:
+            out.sky = se.SkyEstimate(np.ones(3), sun.sky.ground, up_axis)  # all the light from the sky
+            out.lines.append("sun: none (overcast or no consistent shadow): the sky alone lights the shot")
+    out.lights.append(sky_light(out.sky, up_axis))
+    return out
+
+
+def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis) -> CaptureLights:
+    out = CaptureLights([], decision, lines=[decision.line()] if decision else [])
+    cfg = se.CaptureConfig()
+    up = se.up_vector(up_axis)
+    floor = None
+    if hint is not None:
+        floor = se.ground_height(scene, up, centroid, cfg.receiver_radius / proc.mpu, hint,
+                                 cfg.ground_search / proc.mpu, cfg.flat_cos, cfg.ground_band / 3 / proc.mpu)
+        floor = hint if floor is None else floor
+    pts = se.region_points(centroid, up_axis, cfg.visibility_offset / proc.mpu)
+    # candidates in score order (the NMS order of paper 3.1): the first k plausible ones win
+    order = sorted(cands, key=lambda c: -c.score)
+    kept = []
+    for c in order:
+        if len(kept) >= k:
+            break
+        se.plausible_emitters(scene, [c], pts, up_axis, proc.mpu, cfg, floor)
+        if c.rejected:
+            out.rejected.append(c)
+        else:
+            kept.append(c)
+    kept.sort(key=lambda c: -c.intensity)
+    out.lights = [ShotLight(f"Light_{i}", "point", np.asarray(c.position, np.float64), color=np.asarray(c.color),
+                            intensity=float(c.intensity), score=float(c.score)) for i, c in enumerate(kept)]
+    for c in out.rejected:
+        p = c.position
+        out.lines.append(f"rejected light candidate at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), score {c.score:.3g}: "
+                         f"{c.rejected}")
+    return out
+
+
+def _horizontal_irradiance(lt, up: np.ndarray) -> float:
+    """Luminance of the irradiance a light gives an unshadowed horizontal receiver (distant
+    lights and domes only; point lights: None)."""
+    if lt.kind == "directional":
+        return float(se.LUMA @ np.asarray(lt.sun_irradiance(), np.float64)) * max(0.0, float(-np.asarray(
+            lt.direction, np.float64) @ up))
+    if lt.kind == "dome":
+        from usd_gs.io.envmap import latlong_directions, latlong_solid_angles
+        from usd_gs.relight.avatar import dome_radiance
+
+        d = latlong_directions(32, 64)
+        cos = np.maximum(d @ up, 0.0)
+        return float(np.sum(dome_radiance([lt], d) @ se.LUMA * cos * latlong_solid_angles(32, 64)))
+    return None
+
+
+def direct_fraction(proc, lights) -> float:
+    """The darkening ``f`` a full shadow of the shadowing lights causes on a lit receiver's
+    display colour (``usd_gs.shadows.shading``: ``c' = c (1 - f + f T)``), when
+    ``--direct-fraction`` is not given: per light, the measured darkening of an estimated sun
+    (``CaptureLights.direct_share``) or an authored light's ``customData`` ``usdgs:directShare``
+    (what ``usdgs lights`` writes); else, for authored DistantLights with a DomeLight, their
+    linear share ``s = E_direct / (E_direct + E_dome)`` on a horizontal receiver from the
+    intensities, in display terms ``1 - (1 - s)^(1/2.2)``; else 1 (the captured colour taken as
+    all direct light: the estimated point lights of a closed capture, as before). Several
+    lights: the mean weighted by their ``luminous_weight``."""
+    key = tuple((lt.name, lt.kind, lt.source) for lt in lights)
+    cache = proc.__dict__.setdefault("_direct_fraction_cache", {})
+    if key in cache:
+        return cache[key]
+    shares = dict(proc.capture.direct_share) if proc.capture is not None else {}
+    up = se.up_vector(proc.dgsm.up_axis)
+    domes = [lt for lt in lights if lt.kind == "dome"]
+    e_dome = sum(_horizontal_irradiance(d, up) for d in domes)
+    num = den = 0.0
+    for lt in lights:
+        if lt.kind == "dome":
+            continue
+        share = shares.get(lt.name) if lt.source == "estimated" else None
+        if share is None and lt.source != "estimated":
+            prim = proc.stage.GetPrimAtPath(lt.source)
+            v = prim.GetCustomDataByKey("usdgs:directShare") if prim else None
+            share = float(v) if v is not None else None
+            if share is None and lt.kind == "directional" and domes:
+                e = _horizontal_irradiance(lt, up)
+                share = 1.0 - (e_dome / (e + e_dome)) ** (1 / 2.2) if e + e_dome > 0 else 1.0
+        w = max(lt.luminous_weight, 0.0)
+        num += w * (1.0 if share is None else float(np.clip(share, 0.0, 1.0)))
+        den += w
+    f = num / den if den > 0 else 1.0
+    cache[key] = f
+    return f
+
+
+def lights_evidence(cap: CaptureLights) -> dict:
+    """``{light name: {key: value}}`` for :func:`usd_gs.usd.lux.write_capture_lights`."""
+    ev = {}
+    root = {}
+    if cap.decision is not None:
+        root.update({f"capture:{k}": v for k, v in cap.decision.as_dict().items()})
+    if cap.rejected:
+        root["rejected"] = "; ".join(f"({c.position[0]:.2f}, {c.position[1]:.2f}, {c.position[2]:.2f}): "
+                                     f"{c.rejected}" for c in cap.rejected)
+    ev[""] = root
+    if cap.sun is not None:
+        sun = {k: v for k, v in cap.sun.evidence().items()}
+        sun["directShare"] = float(cap.sun.darkening)  # what direct_fraction reads back (display darkening)
+        sun["irradiance"] = np.asarray(cap.sun.irradiance, np.float64)
+        ev["Sun"] = sun
+        if not cap.sun.confident:  # not used as a light: the sky keeps the rejected candidate's figures
+            ev["Sky"] = {f"rejectedSun:{k}": v for k, v in cap.sun.evidence().items()}
+            ev["Sky"]["rejectedSun:direction"] = np.asarray(cap.sun.direction, np.float64)
+    if cap.sky is not None:
+        sky = ev.setdefault("Sky", {})
+        sky["sh"] = cap.sky.sh_rh(2)
+        sky["shBasis"] = ("real SH (Ramamoorthi-Hanrahan), degree 2, radiance, texture frame (+Y pole), "
+                          "flattened [coeff][rgb]")
+        sky["radiance"] = np.asarray(cap.sky.radiance, np.float64)
+    return ev
+
+
+def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
+    """Author ``lights`` (the estimated ones) under /UsdGs/Lights: paper 3.1 point lights of a
+    run without a capture decision -> the SphereLights of ``write_estimated_lights`` as before;
+    else ``write_capture_lights`` with the decision, rejected candidates and estimates as
+    customData, the sky's lat-long EXR written atomically to ``texture_path`` and referenced
+    as ``texture_ref``. Returns the number of texture files written."""
+    from usd_gs.usd.lux import write_capture_lights, write_estimated_lights
+
+    cap = proc.capture
+    if cap is None or (all(lt.kind == "point" for lt in lights) and not cap.rejected and cap.decision is None):
+        write_estimated_lights(stage, lights)
+        return 0
+    textures, n = {}, 0
+    for lt in lights:
+        if lt.kind == "dome" and lt.env is not None:
+            from usd_gs.io.atomic import atomic_output
+            from usd_gs.io.envmap import write_exr
+
+            with atomic_output(texture_path) as tmp:
+                write_exr(tmp, lt.env)
+            textures[lt.name] = texture_ref
+            n += 1
+    write_capture_lights(stage, lights, lights_evidence(cap), textures, up_axis=proc.dgsm.up_axis)
+    return n
