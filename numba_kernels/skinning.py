@@ -9,9 +9,9 @@ Contract (every array C-contiguous; ``N`` Gaussians, ``K`` influences each, ``J`
   renormalised).
 - ``skin`` (J, 4, 4) float64 skinning matrices in the COLUMN-vector convention (``p' = M @ [p, 1]``;
   the transpose of UsdSkel's ``Gf.Matrix4d``), the geomBindTransform already folded in.
-- ``dirs`` (M, 3) float64 unit directions and ``pinv`` (C, M) float64: for each band l >= 1 the rows
-  ``l^2 .. (l+1)^2 - 1`` of ``pinv`` hold the pseudo-inverse of the band-l basis evaluated at
-  ``dirs`` (``numpy.linalg.pinv(Y_l(dirs))``); see ``usd_gs.usd.skel.sh_rotation_tables``.
+- ``dirs`` (M, 3) float64 unit directions, band l owning ``dirs[l^2 - 1 : (l+1)^2 - 1]`` (2l+1 of
+  them), and ``pinv`` (C, M) float64: rows ``l^2 .. (l+1)^2 - 1`` hold the inverse of the band-l
+  basis at its directions in those columns; see ``usd_gs.usd.skel.sh_rotation_tables``.
 
 Per Gaussian: ``A = sum_k w_k skin[j_k]`` (the blended affine). Position ``A[:3, :3] @ p + A[:3, 3]``
 (float64 math). Rotation ``R`` = the orthogonal polar factor of ``A[:3, :3]`` (Newton iteration
@@ -19,7 +19,7 @@ with determinant scaling, converged to 1e-12), uniform scale ``s = det(A33)^(1/3
 When ``det(A33) <= 1e-12 * |A33|_F^3`` (degenerate or reflected blend) ``R`` and ``s`` come from
 the matrix of the Gaussian's largest-weight influence instead (identity / 1 if that one is
 degenerate too). Orientation ``quat(R) * q_rest`` (unit, w >= 0), scales ``s * rest_scales``,
-SH band l: ``c' = D_l @ c`` with ``D_l = pinv_l @ Y_l(R^T dirs)``, exact per band (the new expansion at world
+SH band l: ``c' = D_l @ c`` with ``D_l = A_l^-1 @ Y_l(R^T dirs_l)``, exact per band (the new expansion at world
 direction w equals the old one at ``R^T w``, as ``usd_gs.sh3dgs.rotate_coefficients``).
 Band 0 (DC) is copied. Outputs are float32, finite for finite inputs.
 
@@ -214,9 +214,8 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
                 out_pos, out_quat, out_scales, out_sh, out_rot, mode, dq, scl, pre, post):
     n_inf = joint_idx.shape[1]
     n_coef = sh.shape[1]
-    m = dirs.shape[0]
     ybuf = np.empty(16)
-    ymat = np.empty((m, 16))
+    ymat = np.empty((7, 7))
     dmat = np.empty((7, 7))
     dq_m, dq_t, dq_out = np.empty((4, 4)), np.empty((4, 4)), np.empty((3, 4))
     for i in range(lo, hi):
@@ -284,23 +283,24 @@ def _skin_range(lo, hi, rest_pos, rest_quat, rest_scales, sh, joint_idx, weights
         for c in range(3):
             out_sh[i, 0, c] = sh[i, 0, c]
         if n_coef > 1:
-            for d in range(m):
-                # R^T w
-                wx, wy, wz = dirs[d, 0], dirs[d, 1], dirs[d, 2]
-                _basis(r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz,
-                       r02 * wx + r12 * wy + r22 * wz, ybuf)
-                for e in range(1, n_coef):
-                    ymat[d, e] = ybuf[e]
             band = 1
             while (band + 1) * (band + 1) <= n_coef:
                 b0 = band * band
                 nb = 2 * band + 1
-                # band matrix D = pinv_l @ Y_l(R^T dirs): new = D @ old
+                o = b0 - 1  # this band's directions: dirs[o : o + nb]
+                for d in range(nb):
+                    # the band basis at R^T w
+                    wx, wy, wz = dirs[o + d, 0], dirs[o + d, 1], dirs[o + d, 2]
+                    _basis(r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz,
+                           r02 * wx + r12 * wy + r22 * wz, ybuf)
+                    for e in range(nb):
+                        ymat[d, e] = ybuf[b0 + e]
+                # band matrix D = A_l^-1 @ Y_l(R^T dirs_l): new = D @ old
                 for u in range(nb):
                     for v in range(nb):
                         acc = 0.0
-                        for d in range(m):
-                            acc += pinv[b0 + u, d] * ymat[d, b0 + v]
+                        for d in range(nb):
+                            acc += pinv[b0 + u, o + d] * ymat[d, v]
                         dmat[u, v] = acc
                 for u in range(nb):
                     c0 = 0.0

@@ -323,25 +323,40 @@ def animation_range(prim: Usd.Prim) -> tuple[float, float] | None:
 
 
 def sh_rotation_tables(degree: int):
-    """(dirs (M, 3), pinv (C, M)) float64 for the kernel's exact per-band SH rotation:
-    M = 12 Fibonacci-sphere directions (band condition numbers <= 3.3), rows of band l of
-    ``pinv`` = pinv of the band-l 3DGS basis at them (band 0 rows unused)."""
+    """(dirs (M, 3), pinv (C, M)) float64 for the kernel's exact per-band SH rotation. Band l
+    (1..``degree``) owns the 2l+1 directions ``dirs[l^2 - 1 : (l+1)^2 - 1]`` (M = degree (degree + 2);
+    one unused row for degree 0), picked among 256 Fibonacci-sphere directions for a well-conditioned
+    band basis (condition numbers 1.1, 2.0, 2.8); rows ``l^2 .. (l+1)^2 - 1`` of ``pinv`` hold the
+    inverse of the band-l 3DGS basis at them in those columns, zeros elsewhere (band 0 unused)."""
     if degree in _SH_TABLES:
         return _SH_TABLES[degree]
     from usd_gs import sh3dgs
 
-    m = 12
-    i = np.arange(m) + 0.5
-    z = 1.0 - 2.0 * i / m
+    n = 256
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
     phi = np.pi * (1.0 + 5.0 ** 0.5) * i
     rr = np.sqrt(1.0 - z * z)
-    dirs = np.stack([rr * np.cos(phi), rr * np.sin(phi), z], axis=1)
+    cand = np.stack([rr * np.cos(phi), rr * np.sin(phi), z], axis=1)
+    y_all = sh3dgs.eval_basis(cand, max(degree, 0))
+    m = max(1, degree * (degree + 2))
+    dirs = np.zeros((m, 3))
+    dirs[:, 2] = 1.0
     c = sh3dgs.num_coeffs(degree)
     pinv = np.zeros((c, m))
-    y = sh3dgs.eval_basis(dirs, max(degree, 0))
+    rng = np.random.default_rng(0)
     for band in range(1, degree + 1):
         s = slice(band * band, (band + 1) ** 2)
-        pinv[s] = np.linalg.pinv(y[:, s])
+        nb = 2 * band + 1
+        best, pick = np.inf, None
+        for _ in range(3000):
+            idx = rng.choice(n, nb, replace=False)
+            cond = np.linalg.cond(y_all[idx][:, s])
+            if cond < best:
+                best, pick = cond, idx
+        cols = slice(band * band - 1, (band + 1) ** 2 - 1)
+        dirs[cols] = cand[pick]
+        pinv[s, cols] = np.linalg.inv(y_all[pick][:, s])
     out = (np.ascontiguousarray(dirs), np.ascontiguousarray(pinv))
     _SH_TABLES[degree] = out
     return out
