@@ -333,17 +333,23 @@ class ShotProcessor:
             if dhit:
                 cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
                 part_d = receiver_points(sets[q], drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
-            part_o = self._self_points(q, sets[q], drecv, light)
-            (idx, val), (idx_d, val_d), (idx_o, val_o) = shared_transmittance(
-                sets[q], [part_s, part_d, part_o], light, cfg, movers.packed[q])
+            (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, movers.packed[q])
             ts[idx] *= val
             hits.append(idx[val < 1.0])
             td[idx_d] *= val_d
+            # self-shadowing: its own DGSM (sharing the atlas would widen every pixel's radial range
+            # to the caster's own depth: measured 2x the demo's shadow time)
+            part_o = self._self_points(q, sets[q], drecv, light)
+            (idx_o, val_o), = shared_transmittance(sets[q], [part_o], light, cfg, movers.packed[q])
             if idx_o.size:
                 # self-shadowing shades only the relighting's direct term (the transmittance
                 # primvar and the attenuation of unrelit prims keep other prims' shadows only)
                 own = self._self_vis.setdefault((q, id(light)), np.ones(drecv.gaussians.count))
-                own[idx_o] *= val_o
+                a, b = drecv.ranges[q]
+                sel, nearest = self._self_samples[q]
+                vs = np.ones(sel.size)
+                vs[np.searchsorted(a + sel, idx_o)] = val_o
+                own[a:b] *= vs[nearest]  # each Gaussian takes its nearest sample's self-shadow
         return ts, td, hits
 
     def _scene_shadows_on_moving(self, light, sets: dict, drecv: Receivers, td: np.ndarray) -> None:
@@ -379,11 +385,40 @@ class ShotProcessor:
     def _self_points(self, q: str, g, drecv: Receivers, light):
         """:func:`receiver_points` of a relit prim's own Gaussians for its own DGSM (self-shadowing,
         moved ``self_shadow_bias`` toward the light), or None (not relit, not a receiver, or off)."""
-        if not self.opts.self_shadow or q not in drecv.ranges or q not in self._relit_paths:
+        if not self.opts.self_shadow or q not in drecv.ranges or q not in self._relit_paths or not g.count:
             return None
+        if light.kind != "directional" and self.opts.self_shadow_lights == "distant":
+            return None  # point lights: measured 2x the demo's shadow time (self_shadow_lights='all' for them)
         a, b = drecv.ranges[q]
-        return receiver_points(g, drecv, light, self._centre_cfg, roi="all", bias=self.opts.self_shadow_bias / self.mpu,
-                               candidates=np.arange(a, b))
+        sel, _ = self._self_sample_map(q, g)
+        part = receiver_points(g, drecv, light, self._centre_cfg, roi="all", bias=self.opts.self_shadow_bias / self.mpu,
+                               candidates=a + sel)
+        if part is None:
+            return None
+        local = self._local_normals.get(q)
+        if local is not None and local.shape[0] == g.count:
+            nrm = local_normals_to_world(g.orientations, local)
+        else:
+            nrm = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
+        idx, pts, w = part
+        off = self.opts.self_shadow_normal * float(np.median(g.scales.max(axis=1)))
+        pts = pts + off * np.repeat(np.asarray(nrm, np.float64)[idx - a], len(w), axis=0)
+        return idx, pts, w
+
+    def _self_sample_map(self, q: str, g):
+        """``(sel, nearest)`` of a relit prim, once per shot (its first frame): ``sel`` the indices of
+        at most ``self_shadow_samples`` Gaussians (every k-th) that sample its self-shadowing,
+        ``nearest`` (N,) the position in ``sel`` of each Gaussian's nearest sample. Gaussian k is
+        the same surface point in every frame, so the map holds for the shot."""
+        if not hasattr(self, "_self_samples"):
+            self._self_samples = {}
+        got = self._self_samples.get(q)
+        if got is None or got[1].shape[0] != g.count:
+            from usd_gs.relight.direct import self_shadow_samples
+
+            got = self_shadow_samples(g.positions, self.opts.self_shadow_samples)
+            self._self_samples[q] = got
+        return got
 
     @property
     def _relit_paths(self) -> set:

@@ -142,3 +142,18 @@ def direct_factors(lights, positions: np.ndarray, normals: np.ndarray, visibilit
         v = None if visibility is None else visibility[i]
         out += e if v is None else e * np.clip(np.asarray(v, np.float64), 0.0, 1.0)[:, None]
     return out
+
+
+def self_shadow_samples(positions: np.ndarray, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(sel, nearest)`` for sampling a prim's self-shadowing at a subset of its Gaussians: ``sel``
+    every k-th index (k = ceil(N / n_samples)), ``nearest`` (N,) the position in ``sel`` of each
+    Gaussian's nearest sample (itself when k = 1). Positions (N, 3) metres."""
+    pos = np.asarray(positions, np.float64)
+    n = pos.shape[0]
+    step = max(1, -(-n // max(int(n_samples), 1)))
+    sel = np.arange(0, n, step)
+    if step == 1:
+        return sel, np.arange(n)
+    from scipy.spatial import cKDTree
+
+    return sel, np.asarray(cKDTree(pos[sel]).query(pos)[1], np.int64)
