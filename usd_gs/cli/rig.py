@@ -9,8 +9,13 @@ from usd_gs.errors import UserError
 
 
 def cmd_rig(args) -> int:
+    import importlib.util
+
     from usd_gs.demo.rig import parse_matrix, rig_avatar
 
+    missing = [m for m in ("scipy", "trimesh") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise UserError(f"usdgs rig needs {' and '.join(missing)} (pip install 'usd-gs[rig]')")
     t0 = time.perf_counter()
     if args.influences < 1:
         raise UserError(f"--influences must be >= 1, got {args.influences}")
