@@ -190,6 +190,25 @@ def _export_prims(stage, args, time):
             and UsdGeom.Imageable(p).ComputePurpose() in shown]
 
 
+def _is_static(prim) -> bool:
+    """True when nothing that ``read_gaussian_prim`` uses can vary in time: no attribute of the
+    prim might be time-varying (samples or clips), no skeleton binding, and no transform of it or
+    an ancestor might be time-varying. Such prims are read once per export."""
+    from pxr import UsdGeom
+
+    if any(a.ValueMightBeTimeVarying() for a in prim.GetAttributes()):
+        return False
+    if any(r.GetName().startswith("skel:") for r in prim.GetRelationships()):
+        return False
+    p = prim
+    while p and not p.IsPseudoRoot():
+        xf = UsdGeom.Xformable(p)
+        if xf and xf.TransformMightBeTimeVarying():
+            return False
+        p = p.GetParent()
+    return True
+
+
 def _export_frames(stage, args) -> list:
     """``[(time code, output path)]``."""
     from pxr import Usd
@@ -235,12 +254,22 @@ def cmd_export(args) -> int:
     if args.local and len(prims) != 1:
         raise UserError("--local needs exactly one Gaussian prim (prim-local spaces cannot be merged)")
     total = 0
+    static: dict = {}  # prim path -> Gaussians of prims that cannot change between frames
     for i, (tc, out) in enumerate(frames):
         if i and not args.prim:
             prims = _export_prims(stage, args, tc)  # visibility may be animated
         if not prims:
             raise UserError(f"{args.stage}: no visible Gaussian prim to export at time {tc.GetValue():g}")
-        sets = [read_gaussian_prim(prim, tc, world=not args.local) for prim in prims]
+        sets = []
+        for prim in prims:
+            key = prim.GetPath()
+            if key in static:
+                sets.append(static[key])
+                continue
+            g = read_gaussian_prim(prim, tc, world=not args.local)
+            if len(frames) > 1 and _is_static(prim):
+                static[key] = g
+            sets.append(g)
         for s in sets:
             check_exportable(s)  # opacities outside [0, 1]: refused, the element named (issue #17)
         g = sets[0] if len(sets) == 1 else GaussianSet.concatenate(sets, label=args.stage)

@@ -99,28 +99,51 @@ def read_splat(path) -> GaussianSet:
     return decode_splat(label, _load_bytes(label, path))
 
 
+def _u8(x: np.ndarray) -> np.ndarray:
+    """float -> nearest u8, clamped to 0..255 (in place on ``x``)."""
+    np.rint(x, out=x)
+    np.clip(x, 0, 255, out=x)
+    return x.astype(np.uint8)
+
+
 def encode_splat(gaussians: GaussianSet) -> np.ndarray:
     """The 32-byte records of ``gaussians`` as a ``(N,)`` structured array (module layout).
 
     SH above degree 0 is dropped; colours and opacity are rounded to the nearest u8 and
-    clamped; quaternions are normalised, then ``round(q*128 + 128)`` clamped to 0..255.
+    clamped (float32 arithmetic); quaternions are normalised in float64 (a zero one becomes
+    the identity), then ``round(q*128 + 128)`` clamped to 0..255.
     """
     g = gaussians
+    n = g.count
     for name, arr in (("positions", g.positions), ("scales", g.scales), ("sh", g.sh[:, 0, :]),
                       ("opacities", g.opacities), ("orientations", g.orientations)):
+        with np.errstate(over="ignore", invalid="ignore"):
+            if np.isfinite(arr.sum()):
+                continue
         bad = ~np.isfinite(arr)
         i = first_bad_index(bad.reshape(len(arr), -1)) if len(arr) else -1
         if i >= 0:
             raise GaussianDataError(f"{g.label}: cannot write .splat: '{name}' element {i} is not finite")
-    rec = np.zeros(g.count, dtype=_RECORD)
-    rec["pos"] = g.positions
-    rec["scale"] = g.scales
-    rgb = np.rint((0.5 + SH_C0 * g.sh[:, 0, :].astype(np.float64)) * 255.0)
-    rec["rgba"][:, :3] = np.clip(rgb, 0, 255).astype(np.uint8)
-    rec["rgba"][:, 3] = np.clip(np.rint(g.opacities.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
-    q = g.unit_quaternions().astype(np.float64)
-    rec["rot"] = np.clip(np.rint(q * 128.0 + 128.0), 0, 255).astype(np.uint8)
-    return rec
+    out = np.empty((n, RECORD_BYTES), np.uint8)
+    f = out.view(np.float32)  # (n, 8): position, scale, then the 8 bytes of colour and rotation
+    f[:, 0:3] = g.positions
+    f[:, 3:6] = g.scales
+    rgb = g.sh[:, 0, :] * np.float32(SH_C0)
+    rgb += np.float32(0.5)
+    rgb *= np.float32(255.0)
+    out[:, 24:27] = _u8(rgb)
+    out[:, 27] = _u8(g.opacities * np.float32(255.0))
+    q = g.orientations.astype(np.float64)
+    n2 = np.einsum("ij,ij->i", q, q)
+    zero = n2 == 0
+    if zero.any():
+        q[zero] = (1.0, 0.0, 0.0, 0.0)
+        n2[zero] = 1.0
+    q /= np.sqrt(n2)[:, None]
+    q *= 128.0
+    q += 128.0
+    out[:, 28:32] = _u8(q)
+    return out.view(_RECORD).reshape(n)
 
 
 def write_splat(path, gaussians: GaussianSet) -> None:
