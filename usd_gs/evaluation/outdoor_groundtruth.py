@@ -335,9 +335,10 @@ def outdoor_avatar_truth(scene: OutdoorScene, avatar: GaussianSet, albedo: np.nd
 def sun_visibility_like_process(scene: OutdoorScene, avatar: GaussianSet, light, options=None) -> np.ndarray:
     """(N,) the sun's visibility at the avatar's Gaussians as the main job computes it: the scene's
     DGSM (every scene Gaussian an occluder, lookups moved ``contact_bias`` toward the sun) times the
-    avatar's own (at ``self_shadow_samples`` Gaussians, lookups moved ``self_shadow_bias`` toward the
-    sun and ``self_shadow_normal`` median sigmas along the ``gaussian_normals``, the others taking
-    their nearest sample's: ``ShotProcessor._self_points``), centre sampling
+    avatar's own (DGSM with ``self_shadow_kappa``, at ``self_shadow_samples`` Gaussians, lookups
+    moved ``self_shadow_bias`` toward the sun and ``self_shadow_normal`` median sigmas along the
+    ``gaussian_normals``, the others taking their nearest sample's: ``ShotProcessor._self_points``),
+    centre sampling
     (``ShotProcessor._centre_cfg``)."""
     from dataclasses import replace
 
@@ -360,7 +361,8 @@ def sun_visibility_like_process(scene: OutdoorScene, avatar: GaussianSet, light,
         nrm = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
         off = o.self_shadow_normal * float(np.median(avatar.scales.max(axis=1)))
         pts = pts + off * np.repeat(np.asarray(nrm, np.float64)[idx], len(w), axis=0)
-        (idx, val), = shared_transmittance(avatar, [(idx, pts, w)], light, cfg)
+        cfg_o = replace(cfg, kappa=o.self_shadow_kappa)
+        (idx, val), = shared_transmittance(avatar, [(idx, pts, w)], light, cfg_o)
         vs = np.ones(sel.size)
         vs[np.searchsorted(sel, idx)] = val
         v *= vs[nearest]

@@ -46,7 +46,8 @@ class ProcessOptions:
     color_space: str = "srgb"  # of the Gaussians' colours for relighting: 'srgb' (display-referred) | 'linear'
     self_shadow: bool = True  # a relit prim's own Gaussians shadow its direct light (DGSM, with the bias below)
     self_shadow_bias: float = 0.05  # metres toward the light for a relit prim's own shadow lookups
-    self_shadow_normal: float = 1.0  # and this many median Gaussian sigmas (largest axis) along the normal
+    self_shadow_normal: float = 0.75  # and this many median Gaussian sigmas (largest axis) along the normal
+    self_shadow_kappa: float = 0.25  # DGSM absorption knob (eq. 5 kappa) of a prim's own shadow on itself
     self_shadow_lights: str = "distant"  # self-shadow from 'distant' lights only (the sun) or from 'all'
     self_shadow_samples: int = 4096  # Gaussians per relit prim that sample its self-shadow (nearest for the rest)
     aovs: tuple[str, ...] = ()  # diagnostic primvars to write too: names of usd_gs.usd.output_author.AOVS
@@ -90,6 +91,8 @@ class ProcessOptions:
             raise UserError(f"--color-space must be 'srgb' or 'linear', got '{self.color_space}'")
         if self.self_shadow_lights not in ("distant", "all"):
             raise UserError(f"self_shadow_lights must be 'distant' or 'all', got '{self.self_shadow_lights}'")
+        if not self.self_shadow_kappa > 0.0:
+            raise UserError(f"self_shadow_kappa must be > 0, got {self.self_shadow_kappa}")
         if not self.self_shadow_bias >= 0.0:
             raise UserError(f"self_shadow_bias must be >= 0 metres, got {self.self_shadow_bias}")
         self.dgsm.validate()

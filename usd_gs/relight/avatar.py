@@ -6,7 +6,8 @@ Irradiance at Gaussian i (position x_i, unit outward normal n_i), per channel, l
 
 - ``E_l``: the direct term of every modelled light that is not a dome (``usd_gs.relight.direct``),
   ``V_l`` its visibility in [0, 1] from the project's DGSMs (the static scene's, the other prims',
-  and the prim's own for self-shadowing: ``ShotProcessor._shadow_pass``). A light the scene
+  and the prim's own for self-shadowing, from distant lights by default: ``ShotProcessor._shadow_pass``
+  and ``_self_points``). A light the scene
   blocks completely removes only its own share: the indirect term stays.
 - ``E_ind = pi s(n)``: eq. 7-10 on the probe render of everything but the prim (and but the
   Gaussians that make up a modelled light: the caller's ``mask``, no double counting), at the
