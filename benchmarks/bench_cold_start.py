@@ -97,11 +97,13 @@ def timeline(argv: list[str]) -> int:
     return rc
 
 
-def _timed(argv: list[str], env: dict) -> float:
+def _timed(argv: list[str], env: dict, show: bool = False) -> float:
     t = time.perf_counter()
     r = subprocess.run([sys.executable, "-m", "usd_gs.cli", *argv], env=env, capture_output=True, text=True)
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(argv)} failed (exit {r.returncode}):\n{r.stdout}{r.stderr}")
+    if show:
+        print(r.stdout, end="", flush=True)
     return time.perf_counter() - t
 
 
@@ -126,7 +128,7 @@ def install(argv: list[str]) -> int:
             t_cold = _timed(run, dict(base, NUMBA_CACHE_DIR=caches[-1]))
         caches.append(tempfile.mkdtemp(prefix="usdgs_cold_"))
         env = dict(base, NUMBA_CACHE_DIR=caches[-1])
-        t_warmup = _timed(["warmup", "-q", *jobs], env)
+        t_warmup = _timed(["warmup", *jobs], env, show=True)  # its per-group report
         t_first = _timed(run, env)
         t_warm = _timed(run, env)
     finally:
