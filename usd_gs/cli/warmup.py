@@ -134,14 +134,15 @@ def register_warmup(sub, formatter):
         "warmup", formatter_class=formatter, help="compile the numba kernels once (install step, farm machines)",
         description="Compile every numba kernel that 'usdgs process', 'lights', 'render' and the farm commands use, "
                     "for the argument types they use, into numba's on-disk cache, so that the first real run "
-                    "loads them instead of compiling (about 20-30 s on a fresh install). Run it once after 'pip "
+                    "loads them instead of compiling them. Run it once after 'pip "
                     "install' and on each farm machine type (or once into a shared NUMBA_CACHE_DIR). Tiny "
                     "generated shots are processed in --jobs parallel processes; nothing is written outside the "
                     "cache and a temporary folder. Re-running it on a warm cache compiles nothing.",
         epilog="cache: NUMBA_CACHE_DIR when set, else __pycache__ beside the installed numba_kernels sources (when "
                "writable). numba keys each entry by the numba version, the source file's contents, the function's "
                "bytecode, the argument types and the CPU (name and features), so machines of different CPU types "
-               "may share one folder without loading each other's code.")
+               "may share one folder without loading each other's code; the folder must be writable (numba ignores a "
+               "read-only one and compiles).")
     p.add_argument("--jobs", "-j", type=int, default=max(1, min(4, os.cpu_count() or 1)),
                    help="warm-up processes at once")
     p.add_argument("-v", "--verbose", action="store_true", help="also list the kernels compiled")
