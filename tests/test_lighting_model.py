@@ -348,3 +348,30 @@ def test_zh_appearance_through_the_direct_term():
     f, _ = relight_factors(av, every, m, av.positions.mean(0), nrm, None, opts, lights=[sun], appearance=app)
     col = 0.5 * f  # captured colour 0.5
     np.testing.assert_allclose(col, 0.6 * 2.0 / np.pi, rtol=0.04)  # ZH truncated at l = 4: -3 %
+
+
+def test_albedo_primvar_read_and_relit_as_albedo_times_e():
+    """``primvars:usdgs:albedo`` is read per particle (a wrong length is a UserError naming it) and a
+    prim carrying it is relit as albedo x E / pi, whatever its captured colour."""
+    from usd_gs.relight.appearance import ALBEDO, read_appearance
+
+    stage = _stage()
+    prim = stage.DefinePrim("/P", "Xform")
+    n = 16
+    attr = prim.CreateAttribute(ALBEDO, Sdf.ValueTypeNames.Color3fArray)
+    attr.Set([Gf.Vec3f(0.2, 0.4, 0.6)] * n)
+    app = read_appearance(prim, Usd.TimeCode.Default(), n)
+    np.testing.assert_allclose(app["albedo"], np.tile([0.2, 0.4, 0.6], (n, 1)), rtol=1e-6)
+    assert read_appearance(stage.DefinePrim("/Q", "Xform"), Usd.TimeCode.Default(), n) is None
+    with pytest.raises(UserError, match="primvars:usdgs:albedo"):
+        read_appearance(prim, Usd.TimeCode.Default(), n + 1)
+    av, floor = _patch(n), _grey_floor()
+    floor.opacities[:] = 0.0
+    dome = ShotLight("d", "dome", intensity=1.5, shape="dome")
+    opts = ProcessOptions(probe_points=1)
+    every = GaussianSet.concatenate([floor, av])
+    m = np.zeros(every.count, bool)
+    f, _ = relight_factors(av, every, m, av.positions.mean(0), np.tile([0.0, 1.0, 0.0], (n, 1)), None, opts,
+                           lights=[dome], appearance=app)
+    # uniform sky of radiance 1.5: E = 1.5 pi, relit linear = albedo * 1.5, displayed sRGB-encoded
+    np.testing.assert_allclose(0.5 * f, np.tile(srgb_encode(np.array([0.2, 0.4, 0.6]) * 1.5), (n, 1)), rtol=0.01)
