@@ -100,9 +100,9 @@ def speed(n: int):
     boxes = [STATUE, ((2.0, 0, -2.0), (2.6, 1.0, -1.4)), ((-2.5, 0, 1.5), (-1.9, 2.5, 2.0)),
              ((-2.0, 0, -2.5), (-1.2, 0.5, -1.9)), ((1.8, 0, 2.2), (2.2, 3.0, 2.6)), ((-0.2, 0, 2.6), (0.4, 0.8, 3.0))]
     half = 3.5
-    spacing = (4 * half * half / n) ** 0.5
+    spacing = (4 * half * half / n) ** 0.5 * 1.3  # the props' faces hold about 40 % more
     t = time.perf_counter()
-    sc = make_sun_scene(spacing=spacing, ground_half=half, boxes=boxes, sky_samples=4, sun_samples=1)
+    sc = make_sun_scene(spacing=spacing, ground_half=half, boxes=boxes, sky_samples=1, sun_samples=1)
     print(f"speed scene: {sc.gaussians.count:,} Gaussians (generated in {time.perf_counter() - t:.0f} s)")
     t = time.perf_counter()
     est = se.estimate_sun(sc.gaussians, CENTRE, "Y", ground_hint=0.0)

@@ -96,13 +96,14 @@ class CaptureConfig:
     of a ground Gaussian), ``max_receivers`` (8000), ``min_elevation_deg`` (5); coarse pass:
     ``coarse_directions`` (96), ``coarse_cell`` (0.08 m buckets), ``coarse_receivers`` (3000, a subset),
     ``coarse_casters`` (60000: above this a random subset whose optical depth is scaled by the
-    inverse share, ``alpha' = 1 - (1 - alpha)^(1/share)``); fine passes: all casters and
-    receivers, ``fine_cell`` (0.04 m), ``fine_steps_deg`` (4, 1.3, 0.45) with ``fine_half``
-    (2, 1, 1): (2h+1)^2 directions per grid, re-centred while the best lies on the grid's edge (at most 3
-    times); ``fine_seeds`` (2) best separated coarse directions;
+    inverse share, ``alpha' = 1 - (1 - alpha)^(1/share)``); fine passes: every receiver and
+    up to ``fine_casters`` (250000, thinned the same way above that), ``fine_cell`` (0.04 m),
+    ``fine_steps_deg`` (4, 1.3, 0.45) with ``fine_half`` (2, 1, 1): (2h+1)^2 directions per grid,
+    re-centred while the best lies on the grid's edge (at most 3 times); ``fine_seeds`` (2) best
+    separated coarse directions;
     ``score_threshold`` (0.25), ``min_direct_share`` (0.25), ``min_set`` (30), ``k_sigma`` (3);
     the lit/shadow ratio reads the sky visibility of up to ``ratio_receivers`` (3000) receivers
-    of its two sets over ``ratio_directions`` (256) directions.
+    of its two sets over ``ratio_directions`` (192) directions with the coarse casters.
     closed: ``emitter_radius`` (0.25 m: the candidate's own Gaussians, left out of the
     visibility test), ``min_visibility`` (0.2), ``visibility_offset`` (0.5 m: the avatar region's
     sample points around the centre), ``floor_margin`` (0.05 m).
@@ -124,6 +125,7 @@ class CaptureConfig:
     max_receivers: int = 8000
     coarse_receivers: int = 3000
     coarse_casters: int = 60000
+    fine_casters: int = 250000
     min_elevation_deg: float = 5.0
     coarse_directions: int = 96
     coarse_cell: float = 0.08
@@ -135,7 +137,7 @@ class CaptureConfig:
     min_direct_share: float = 0.25
     min_set: int = 30
     ratio_receivers: int = 3000
-    ratio_directions: int = 256
+    ratio_directions: int = 192
     k_sigma: float = 3.0
     emitter_radius: float = 0.25
     min_visibility: float = 0.2
@@ -362,16 +364,11 @@ class _Scorer:
 
         self.cfg = cfg
         dcfg = DGSMConfig()
-        self.full = prepare_occluders(casters, dcfg)
         rng = np.random.default_rng(1)
-        if casters.count > cfg.coarse_casters:
-            share = cfg.coarse_casters / casters.count
-            pick = np.sort(rng.choice(casters.count, cfg.coarse_casters, replace=False))
-            thin = casters.subset(pick)
-            thin.opacities = (1.0 - (1.0 - np.clip(thin.opacities, 0.0, 0.999)) ** (1.0 / share)).astype(np.float32)
-            self.coarse = prepare_occluders(thin, dcfg)
-        else:
-            self.coarse = self.full
+        self.full = (self._thinned(casters, cfg.fine_casters, rng, dcfg) if casters.count > cfg.fine_casters
+                     else prepare_occluders(casters, dcfg))
+        self.coarse = (self._thinned(casters, cfg.coarse_casters, rng, dcfg) if casters.count > cfg.coarse_casters
+                       else self.full)
         self.points = np.ascontiguousarray(points, np.float64)
         m = self.points.shape[0]
         self.sub = (np.sort(rng.choice(m, cfg.coarse_receivers, replace=False)) if m > cfg.coarse_receivers
@@ -381,6 +378,17 @@ class _Scorer:
         self.rows = np.arange(m)
         self.builds = 0
         self.V_all = None
+
+    @staticmethod
+    def _thinned(casters: GaussianSet, n: int, rng, dcfg):
+        """Packed occluders of a random subset of ``n`` casters whose optical depth is scaled by the
+        inverse share (``alpha' = 1 - (1 - alpha)^(1/share)``): the same mean absorption."""
+        from usd_gs.shadows.dgsm import prepare_occluders
+
+        share = n / casters.count
+        thin = casters.subset(np.sort(rng.choice(casters.count, n, replace=False)))
+        thin.opacities = (1.0 - (1.0 - np.clip(thin.opacities, 0.0, 0.999)) ** (1.0 / share)).astype(np.float32)
+        return prepare_occluders(thin, dcfg)
 
     def transmittance(self, dirs: np.ndarray, cell: float, coarse: bool = False) -> np.ndarray:
         """(M', D) float32 transmittance of the receivers (the coarse subset with ``coarse``)
@@ -501,6 +509,8 @@ def _shading_check(g: GaussianSet, idx: np.ndarray, up: np.ndarray, centre) -> n
     casters' centre: outward on a convex statue, up on the ground)."""
     if idx.size < 50:
         return None
+    if idx.size > 50000:
+        idx = np.sort(np.random.default_rng(3).choice(idx, 50000, replace=False))
     sub = g.subset(idx)
     n = smallest_axes(sub)
     p = sub.positions.astype(np.float64)
@@ -622,7 +632,7 @@ def _dense_transmittance(scorer: _Scorer, dirs: np.ndarray, rows: np.ndarray, cf
     """(len(rows), D) float64 transmittance of receivers ``rows`` for sun directions ``dirs``."""
     from numba_kernels.sun_shadow import transmittance_directions
 
-    occ, dep, cov6 = scorer.full
+    occ, dep, cov6 = scorer.coarse  # the sky visibility is smooth: the coarse casters suffice
     return transmittance_directions(-dirs, occ, dep, cov6, scorer.points[rows], cfg.k_sigma,
                                     cfg.coarse_cell).astype(np.float64)
 
