@@ -401,3 +401,33 @@ def radius_neighbours(grid: HashGrid, queries: np.ndarray, radius: float,
     offsets = np.zeros(counts.shape[0] + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     return offsets, _run(grid, queries, radius, inner, 1, offsets=offsets)[2]
+
+
+def nearest(points: np.ndarray, queries: np.ndarray, radius: float | None = None) -> np.ndarray:
+    """(Q,) int64 index of the nearest of ``points`` (M >= 1, finite) to each query (finite), by
+    float64 squared distance; ties go to the lower index. Searches a hash grid within ``radius``
+    (default: the points' bounding-box diagonal over sqrt(M), about their spacing on a surface)
+    and doubles the radius for the queries with no point inside until every query has one."""
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    q = np.ascontiguousarray(queries, dtype=np.float64).reshape(-1, 3)
+    if pts.shape[0] == 0:
+        raise ValueError("nearest: no points")
+    out = np.full(q.shape[0], -1, np.int64)
+    if radius is None:
+        diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+        radius = diag / np.sqrt(pts.shape[0])
+    r = max(float(radius), 1e-9)
+    todo = np.arange(q.shape[0])
+    while todo.size:
+        grid = build_grid(pts, r)
+        offsets, idx = radius_neighbours(grid, q[todo], r)
+        counts = np.diff(offsets)
+        seg = np.repeat(np.arange(todo.size), counts)
+        d2 = ((pts[idx] - q[todo][seg]) ** 2).sum(axis=1)
+        order = np.lexsort((idx, d2, seg))  # per query: smallest distance, then lowest index
+        first = order[np.r_[0, np.flatnonzero(np.diff(seg[order])) + 1]] if order.size else order
+        found = counts > 0
+        out[todo[seg[first]]] = idx[first]
+        todo = todo[~found]
+        r *= 2.0
+    return out

@@ -65,3 +65,16 @@ def test_deterministic_sums():
     a = radius_sum(g, points[:500], 0.1, vals)
     b = radius_sum(build_grid(points, 0.1), points[:500], 0.1, vals)
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+
+
+@pytest.mark.parametrize("radius", [None, 1e-4, 5.0])
+def test_nearest_matches_the_dense_reference(radius):
+    from numba_kernels import grid_neighbours
+    from numba_kernels.reference import grid_neighbours as ref
+
+    rng = np.random.default_rng(7)
+    pts = rng.normal(size=(300, 3))
+    pts[:50] = pts[0]  # duplicates: the tie goes to the lower index
+    queries = np.concatenate([rng.normal(size=(500, 3)) * 2.0, pts[:60], [[40.0, 0.0, 0.0]]])
+    got = grid_neighbours.nearest(pts, queries, radius)
+    np.testing.assert_array_equal(got, ref.nearest(pts, queries))

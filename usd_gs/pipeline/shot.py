@@ -39,6 +39,7 @@ from usd_gs.pipeline import jit_warmup
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.direct import self_shadow_samples
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.resources import check_memory
 from usd_gs.shadows.dgsm import prepare_occluders
@@ -149,6 +150,9 @@ class ShotProcessor:
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
         self._local_sh_cache: dict = {}
+        self._self_samples: dict = {}  # relit prim -> its self-shadow sample map (_self_sample_map)
+        self._frame_now: float | None = None  # the frame being processed
+        self._calib_centre = None  # where estimated lights are calibrated (_calibration_centre)
         # what the run did
         self.affected: dict[str, int] = {}
         self.probe_files = 0
@@ -264,6 +268,7 @@ class ShotProcessor:
     # ------------------------------------------------------------------ per frame
     def _frame(self, frame: float, author, probe_dir: Path):
         """One frame: read what moves, the lights, then the shadow, relighting and authoring passes."""
+        self._frame_now = frame
         t = time.perf_counter()
         dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
         sets = {**self.static, **dyn}
@@ -402,28 +407,26 @@ class ShotProcessor:
                                candidates=a + sel)
         if part is None:
             return None
-        local = self._local_normals.get(q)
-        if local is not None and local.shape[0] == g.count:
-            nrm = local_normals_to_world(g.orientations, local)
-        else:
-            nrm = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
+        local, _ = self._prim_local_normals(q, g, self._frame_now)
+        nrm = local_normals_to_world(g.orientations, local)
         idx, pts, w = part
         off = self.opts.self_shadow_normal * float(np.median(g.scales.max(axis=1)))
         pts = pts + off * np.repeat(np.asarray(nrm, np.float64)[idx - a], len(w), axis=0)
         return idx, pts, w
 
     def _self_sample_map(self, q: str, g):
-        """``(sel, nearest)`` of a relit prim, once per shot (its first frame): ``sel`` the indices of
-        at most ``self_shadow_samples`` Gaussians (every k-th) that sample its self-shadowing,
-        ``nearest`` (N,) the position in ``sel`` of each Gaussian's nearest sample. Gaussian k is
-        the same surface point in every frame, so the map holds for the shot."""
-        if not hasattr(self, "_self_samples"):
-            self._self_samples = {}
+        """``(sel, nearest)`` of a relit prim, once per shot (at the shot's first frame, also in a
+        farm chunk that starts later): ``sel`` the indices of at most ``self_shadow_samples``
+        Gaussians (every k-th) that sample its self-shadowing, ``nearest`` (N,) the position in
+        ``sel`` of each Gaussian's nearest sample. Gaussian k is the same surface point in every
+        frame, so the map holds for the shot (it is rebuilt when the Gaussian count changes)."""
         got = self._self_samples.get(q)
         if got is None or got[1].shape[0] != g.count:
-            from usd_gs.relight.direct import self_shadow_samples
-
-            got = self_shadow_samples(g.positions, self.opts.self_shadow_samples)
+            rest = g
+            if self.anchor_frame is not None and got is None:
+                first = self._read(q, self.anchor_frame)  # a chunk: the map of the whole-shot run
+                rest = first if first.count == g.count else g
+            got = self_shadow_samples(rest.positions, self.opts.self_shadow_samples)
             self._self_samples[q] = got
         return got
 
@@ -500,9 +503,11 @@ class ShotProcessor:
 
     def _calibrated(self, lights, everything, spans, centre) -> list:
         """The lights for the relighting: estimated point lights get the radiant intensity that their
-        emitter Gaussians show at ``centre`` (a render of those Gaussians alone: ``sum`` of linear
-        radiance x solid angle, times the squared distance), once per shot and light; the stage's
-        lights are used as authored."""
+        emitter Gaussians show at one point of the shot (a render of those Gaussians alone: ``sum``
+        of linear radiance x solid angle, times the squared distance), once per shot and light; the
+        stage's lights are used as authored. The point is the first relit prim's centroid at the
+        shot's first frame (``anchor_frame`` in a farm chunk), so chunks match the whole-shot run;
+        ``centre`` is the fallback when that prim cannot be read."""
         from numba_kernels.cubemap_dirs import cube_face_solid_angles
         from usd_gs.relight.avatar import linear_faces
         from usd_gs.relight.probe import render_probe_faces
@@ -514,6 +519,7 @@ class ShotProcessor:
                 continue
             key = ("calibrated", tuple(np.round(lt.position, 6)))
             if key not in self._scene_packs:
+                centre = self._calibration_centre(centre)
                 mine = ~self._emitter_mask([lt], everything, spans)
                 size = self.opts.probe_size
                 rgb, alpha, _ = render_probe_faces(everything, centre, size, mine)
@@ -523,6 +529,15 @@ class ShotProcessor:
                 self._scene_packs[key] = e * r2
             out.append(replace(lt, color=self._scene_packs[key], intensity=1.0, radius=0.0, shape="point"))
         return out
+
+    def _calibration_centre(self, fallback):
+        """The first relit prim's alpha-weighted centroid at the shot's first frame (cached)."""
+        if self._calib_centre is None:
+            relit = sorted(self._relit_paths, key=[r.path for r in self.roles].index)
+            first = self.anchor_frame if self.anchor_frame is not None else self.frames[0]
+            g = self._read(relit[0], first) if relit else None
+            self._calib_centre = alpha_weighted_centroid(g) if g is not None and g.count else np.asarray(fallback)
+        return self._calib_centre
 
     def _direct_fraction(self) -> float:
         """The share of a lit receiver's light that the shadowing lights bring, when
@@ -648,16 +663,11 @@ class ShotProcessor:
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 
-    def _relight(self, path, g, everything, span, frame, author, probe_dir, lights=(), shadows=None, spans=None):
-        jit_warmup.wait_for("relight")  # cold cache: the warm-up process compiles these kernels
-        t = time.perf_counter()
-        centre = alpha_weighted_centroid(g)
-        mask = np.ones(everything.count, bool)
-        vis = self._visibility(path, lights, shadows)  # (before the calibrated copies: keyed by the shadow lights)
-        if lights and spans is not None:
-            mask &= self._emitter_mask(lights, everything, spans)  # modelled lights: not again in the probe
-            lights = self._calibrated(lights, everything, spans, centre)
-        mask[span[0]:span[1]] = False
+    def _prim_local_normals(self, path: str, g, frame: float):
+        """``(local normals (N, 3), the prim at the anchor frame or None)`` of a relit prim: estimated
+        once per shot, at the shot's first frame (``anchor_frame`` in a farm chunk that starts
+        later, so that chunks match the whole-shot run), in each Gaussian's own frame, then carried
+        by its rotation; re-estimated when the Gaussian count changes."""
         local = self._local_normals.get(path)
         first = None
         if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
@@ -669,6 +679,19 @@ class ShotProcessor:
             n = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
             local = normals_to_local(g.orientations, n)
             self._local_normals[path] = local
+        return local, first
+
+    def _relight(self, path, g, everything, span, frame, author, probe_dir, lights=(), shadows=None, spans=None):
+        jit_warmup.wait_for("relight")  # cold cache: the warm-up process compiles these kernels
+        t = time.perf_counter()
+        centre = alpha_weighted_centroid(g)
+        mask = np.ones(everything.count, bool)
+        vis = self._visibility(path, lights, shadows)  # (before the calibrated copies: keyed by the shadow lights)
+        if lights and spans is not None:
+            mask &= self._emitter_mask(lights, everything, spans)  # modelled lights: not again in the probe
+            lights = self._calibrated(lights, everything, spans, centre)
+        mask[span[0]:span[1]] = False
+        local, first = self._prim_local_normals(path, g, frame)
         blend = self._probe_blends.get(path)
         if blend is None or blend.labels.shape[0] != g.count:
             rest = first if first is not None and first.count == g.count else g

@@ -154,6 +154,6 @@ def self_shadow_samples(positions: np.ndarray, n_samples: int) -> tuple[np.ndarr
     sel = np.arange(0, n, step)
     if step == 1:
         return sel, np.arange(n)
-    from scipy.spatial import cKDTree
+    from numba_kernels.grid_neighbours import nearest
 
-    return sel, np.asarray(cKDTree(pos[sel]).query(pos)[1], np.int64)
+    return sel, nearest(pos[sel], pos)
