@@ -619,13 +619,12 @@ def estimate_sun(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit
 
 
 def _nearest_values(points: np.ndarray, ref: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """(M,) ``values`` of the nearest ``ref`` point of each point (scipy cKDTree)."""
+    """(M,) ``values`` of the nearest ``ref`` point of each point (``grid_neighbours.nearest``)."""
     if ref.shape[0] == points.shape[0]:
         return values
-    from scipy.spatial import cKDTree
+    from numba_kernels.grid_neighbours import nearest
 
-    _, k = cKDTree(ref).query(points, k=1)
-    return values[k]
+    return values[nearest(ref, points)]
 
 
 def _dense_transmittance(scorer: _Scorer, dirs: np.ndarray, rows: np.ndarray, cfg: CaptureConfig) -> np.ndarray:
