@@ -30,23 +30,36 @@ def monkey_frame(f: int) -> int:
     return (int(f) - 1) % MONKEY_FRAMES + 1
 
 
+def placement_matrix(positions: np.ndarray) -> np.ndarray:
+    """USD (row-vector) 4x4 matrix: rotate by :data:`MONKEY_ROTATION`, lowest point to y = 0,
+    x/z box centre to :data:`MONKEY_POSITION`, uniform scale to :data:`MONKEY_HEIGHT` tall
+    (the placement ``usd_gs.demo.stage.canonical_matrix`` gives the demo's captures)."""
+    rot = MONKEY_ROTATION
+    p = np.asarray(positions, np.float64) @ rot.T
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    s = MONKEY_HEIGHT / (hi[1] - lo[1])
+    base = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    m = np.eye(4)
+    m[:3, :3] = (s * rot).T
+    m[3, :3] = np.asarray(MONKEY_POSITION) - s * base
+    return m
+
+
 def write_monkey_layer(frames: int, data_dir, path, fps: float = 24.0) -> int:
     """Write the monkey layer (module docstring) for demo frames 1..``frames`` to ``path``.
 
     Returns the Gaussian count of frame 1. Raises ``UserError`` naming a missing frame file.
     """
-    from usd_gs.demo.stage import _new_layer_stage, canonical_matrix, usd_matrix
     from usd_gs.io.formats import read_capture
     from usd_gs.io.sequence import frame_path, sequence_paths
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic
     from usd_gs.usd.schema import apply_role
     from usd_gs.usd.sequence_prim import write_sequence_prim
 
     pattern = str(Path(data_dir) / MONKEY_PATTERN)
     sequence_paths(pattern, (1, min(frames, MONKEY_FRAMES)))  # every file present before any work
     first = read_capture(frame_path(pattern, 1))
-    m = canonical_matrix(first.positions, MONKEY_ROTATION, MONKEY_HEIGHT)
-    m = m @ usd_matrix(np.eye(3), MONKEY_POSITION)
+    m = placement_matrix(first.positions)
     cache: dict[int, object] = {}
 
     def placed(f: int):
@@ -59,7 +72,7 @@ def write_monkey_layer(frames: int, data_dir, path, fps: float = 24.0) -> int:
             cache.pop(src)
         return f, g
 
-    stage = _new_layer_stage(frames)
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")
     write_sequence_prim(stage, PRIM_PATH, (placed(f) for f in range(1, frames + 1)), keep_raw=False, fps=fps)
     apply_role(stage.GetPrimAtPath(PRIM_PATH), "avatar")
     stage.SetStartTimeCode(1)
