@@ -127,6 +127,7 @@ def _open_lights(proc, scene, centroid, hint, decision, up_axis) -> CaptureLight
                          f"{sun.timings.get('total', 0.0):.1f} s)")
         if sun.confident:
             lt = sun_light(sun)
+            lt.direct_share = float(sun.darkening)  # travels with the light (farm chunks get the lights only)
             out.lights.append(lt)
             out.direct_share[lt.name] = float(sun.darkening)
         else:
@@ -193,7 +194,7 @@ def direct_fraction(proc, lights) -> float:
     intensities, in display terms ``1 - (1 - s)^(1/2.2)``; else 1 (the captured colour taken as
     all direct light: the estimated point lights of a closed capture, as before). Several
     lights: the mean weighted by their ``luminous_weight``."""
-    key = tuple((lt.name, lt.kind, lt.source) for lt in lights)
+    key = tuple((lt.name, lt.kind, lt.source, getattr(lt, "direct_share", None)) for lt in lights)
     cache = proc.__dict__.setdefault("_direct_fraction_cache", {})
     if key in cache:
         return cache[key]
@@ -205,7 +206,9 @@ def direct_fraction(proc, lights) -> float:
     for lt in lights:
         if lt.kind == "dome":
             continue
-        share = shares.get(lt.name) if lt.source == "estimated" else None
+        share = getattr(lt, "direct_share", None)
+        if share is None and lt.source == "estimated":
+            share = shares.get(lt.name)
         if share is None and lt.source != "estimated":
             prim = proc.stage.GetPrimAtPath(lt.source)
             v = prim.GetCustomDataByKey("usdgs:directShare") if prim else None
@@ -257,9 +260,12 @@ def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
     from usd_gs.usd.lux import write_capture_lights, write_estimated_lights
 
     cap = proc.capture
-    if cap is None or (all(lt.kind == "point" for lt in lights) and not cap.rejected and cap.decision is None):
+    points_only = all(lt.kind == "point" for lt in lights)
+    if points_only and (cap is None or (not cap.rejected and cap.decision is None)):
         write_estimated_lights(stage, lights)
         return 0
+    if cap is None:  # a farm chunk: the shot's lights without the estimate's evidence
+        cap = CaptureLights(list(lights))
     textures, n = {}, 0
     for lt in lights:
         if lt.kind == "dome" and lt.env is not None:
@@ -270,5 +276,9 @@ def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
                 write_exr(tmp, lt.env)
             textures[lt.name] = texture_ref
             n += 1
-    write_capture_lights(stage, lights, lights_evidence(cap), textures, up_axis=proc.dgsm.up_axis)
+    evidence = lights_evidence(cap)
+    for lt in lights:
+        if getattr(lt, "direct_share", None) is not None:
+            evidence.setdefault(lt.name, {})["directShare"] = float(lt.direct_share)
+    write_capture_lights(stage, lights, evidence, textures, up_axis=proc.dgsm.up_axis)
     return n

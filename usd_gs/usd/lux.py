@@ -93,6 +93,7 @@ class ShotLight:
     normalize: bool = False
     env: np.ndarray | None = None  # dome: (h, w, 3) linear lat-long texture, None = uniform
     texture: str = ""  # dome: resolved path of inputs:texture:file ('' = none)
+    direct_share: float | None = None  # measured darkening of its full shadow (customData usdgs:directShare)
 
     @property
     def luminous_weight(self) -> float:
