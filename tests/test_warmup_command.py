@@ -80,7 +80,7 @@ def test_jobs_must_be_positive(capsys):
 
 def test_schedule_runs_every_group_after_its_dependencies():
     from usd_gs.cli.warmup import AFTER, ORDER
-    from usd_gs.pipeline.jit_warmup import ALL_GROUPS
+    from usd_gs.pipeline.machine_warmup import GROUPS as ALL_GROUPS
 
     assert sorted(ORDER) == sorted(ALL_GROUPS)
     for g, deps in AFTER.items():

@@ -3,7 +3,7 @@
 The kernels are ``@njit(cache=True)``: compiled on first use and kept in numba's on-disk cache
 (``NUMBA_CACHE_DIR`` when set, else ``__pycache__`` beside the installed ``numba_kernels``
 sources when writable). This command fills that cache by running the warm-up groups of
-``usd_gs.pipeline.jit_warmup`` (``ALL_GROUPS``: the main job's relighting, shadow maps, refined
+``usd_gs.pipeline.machine_warmup`` (``GROUPS``: the main job's relighting, shadow maps, refined
 sampling, light estimation, UsdSkel skinning, DistantLight and SphereLight runs, the preview
 renders of ``usdgs render``, and last a whole ``usdgs process`` of a tiny generated shot that
 compiles whatever the others left) in ``--jobs`` processes at once. Each group runs in a fresh
@@ -73,7 +73,7 @@ def run_groups(jobs: int, say=None) -> list[dict]:
                 pending.remove(g)
                 log = open(folder / f"{g}.log", "wb")  # noqa: SIM115 - closed when the process ends
                 # -P: the installed package, not a checkout in the current directory (jit_warmup.start)
-                proc = subprocess.Popen([sys.executable, "-P", "-m", "usd_gs.pipeline.jit_warmup", g],
+                proc = subprocess.Popen([sys.executable, "-P", "-m", "usd_gs.pipeline.machine_warmup", g],
                                         env=dict(env, USDGS_JIT_WARMUP_REPORT=str(folder / f"{g}.json")),
                                         stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
                 running[g] = (proc, log)

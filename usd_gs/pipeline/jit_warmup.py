@@ -48,11 +48,6 @@ from usd_gs.usd.lux import ShotLight
 SENTINEL = ("numba_kernels.rasterize", "_blend")
 #: the groups of the main job's background warm-up, in the order :func:`warm_up` compiles them
 GROUPS = ("refine", "relight", "shadows")
-#: the groups only ``usdgs warmup`` runs (the rest of what the commands compile, see :func:`warm_up`);
-#: ``process`` is a whole ``usdgs process`` run on a tiny shot, the catch-all run last
-EXTRA_GROUPS = ("estimate", "skin", "directional", "render", "process")
-#: every group :func:`warm_up` knows
-ALL_GROUPS = GROUPS + EXTRA_GROUPS
 #: the groups the background process compiles (the main job compiles the others itself)
 BACKGROUND = ("relight",)
 #: seconds the main process waits at most for one group
@@ -171,137 +166,12 @@ def _fake_atlas(occ_count: int):
                             np.arange(w * w, dtype=np.int64), 0, 0, tiles)
 
 
-def _flat_patch(nx: int, nz: int, spacing: float, origin, colour, seed: int) -> GaussianSet:
-    """``nx * nz`` flat Gaussians (normal +Y) on a grid in the plane y = origin[1], SH degree 1."""
-    rng = np.random.default_rng(seed)
-    gx, gz = np.meshgrid(np.arange(nx), np.arange(nz), indexing="ij")
-    n = nx * nz
-    g = random_gaussians(n, 1, seed=seed)
-    g.positions[:] = (np.stack([gx.ravel(), np.zeros(n), gz.ravel()], axis=1) * spacing
-                      + np.asarray(origin, np.float64)).astype(np.float32)
-    g.orientations[:] = np.array([np.sqrt(0.5), -np.sqrt(0.5), 0.0, 0.0], np.float32)  # local z -> +Y
-    g.scales[:] = np.array([0.6 * spacing, 0.6 * spacing, 0.05 * spacing], np.float32)
-    g.opacities[:] = 0.9
-    g.sh[:] = 0.0
-    g.sh[:, 0] = ((np.asarray(colour, np.float32) * (0.9 + 0.2 * rng.random((n, 1)))) - 0.5) / 0.28209479177387814
-    return g
-
-
-def tiny_shot(folder, light: str = "none") -> Path:
-    """Write a tiny shot to ``folder``/shot_<light>.usda and return its path: frames 1..2, Y-up,
-    metres; ``/World/Floor`` (a 4 m floor, role scene, no ceiling: an open capture) with a small
-    bright cluster ``/World/Lamp`` (scene, an emitter the light estimation can find), a skinned
-    avatar ``/World/Rig/Avatar`` (UsdSkel, classic linear blend) and a dual-quaternion skinned one
-    ``/World/Rig/AvatarDQ`` (role object), and the lights ``light`` names: ``none`` (estimated),
-    ``sphere`` (a UsdLux SphereLight) or ``distant`` (a UsdLux DistantLight)."""
-    from pxr import Gf, UsdGeom, UsdLux, UsdSkel
-
-    from usd_gs.gaussians import matrix_to_quaternion
-    from usd_gs.usd import skel as uskel
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
-
-    stage = new_stage()
-    stage.SetStartTimeCode(1)
-    stage.SetEndTimeCode(2)
-    UsdGeom.Xform.Define(stage, "/World")
-    floor = _flat_patch(20, 20, 0.2, (-2.0, 0.0, -2.0), (0.6, 0.55, 0.5), seed=3)
-    apply_role(write_gaussian_prim(stage, "/World/Floor", floor, keep_raw=False), "scene")
-    lamp = random_gaussians(24, 1, seed=4)
-    lamp.positions[:] = lamp.positions * 0.01 + np.array([0.5, 2.2, 0.3], np.float32)
-    lamp.scales[:] = 0.01
-    lamp.opacities[:] = 0.95
-    lamp.sh[:] = 0.0
-    lamp.sh[:, 0] = (4.0 - 0.5) / 0.28209479177387814
-    apply_role(write_gaussian_prim(stage, "/World/Lamp", lamp, keep_raw=False), "scene")
-    UsdSkel.Root.Define(stage, "/World/Rig")
-    bind = np.stack([np.eye(4), np.eye(4)])
-    bind[1, :3, 3] = [0, 0.15, 0]
-    sk = uskel.author_skeleton(stage, "/World/Rig/Skel", ["a", "a/b"], bind, bind.copy())
-    rot = np.array(Gf.Matrix3d(Gf.Rotation(Gf.Vec3d(0, 0, 1), 30))).T
-    q = matrix_to_quaternion(np.stack([np.eye(3), np.eye(3), np.eye(3), rot])).reshape(2, 2, 4)
-    tr = np.array([[[0, 0, 0], [0, 0.15, 0]], [[0.3, 0, 0], [0, 0.15, 0]]], np.float64)
-    uskel.author_animation(stage, "/World/Rig/Skel/Anim", sk, ["a", "a/b"], [1.0, 2.0], tr, q)
-    for k, (name, role) in enumerate((("Avatar", "avatar"), ("AvatarDQ", "object"))):
-        g = random_gaussians(96, 3 if k == 0 else 0, seed=5 + k)
-        g.positions[:] = g.positions * 0.02 + np.array([0.4 * k, 0.15, 0.0], np.float32)  # feet on the floor
-        prim = write_gaussian_prim(stage, f"/World/Rig/{name}", g, keep_raw=False)
-        apply_role(prim, role, relight=True)
-        w = np.clip((g.positions[:, 1] - 0.13) / 0.04, 0, 1)
-        binding = uskel.bind_prim(prim, sk, np.tile([0, 1], (g.count, 1)), np.stack([1 - w, w], axis=1))
-        if k == 1:
-            binding.CreateSkinningMethodAttr(UsdSkel.Tokens.dualQuaternion)
-    if light == "sphere":
-        lt = UsdLux.SphereLight.Define(stage, "/World/Bulb")
-        lt.CreateIntensityAttr(20.0)
-        lt.CreateRadiusAttr(0.05)
-        UsdGeom.Xformable(lt).AddTranslateOp().Set(Gf.Vec3d(0.5, 2.2, 0.3))
-    elif light == "distant":
-        lt = UsdLux.DistantLight.Define(stage, "/World/Sun")
-        lt.CreateIntensityAttr(3.0)
-        lt.CreateAngleAttr(0.53)
-        UsdGeom.Xformable(lt).AddRotateXYZOp().Set(Gf.Vec3f(-60.0, 30.0, 0.0))
-    elif light != "none":
-        raise ValueError(f"tiny_shot: light must be none, sphere or distant, got {light!r}")
-    return save_stage_atomic(stage, Path(folder) / f"shot_{light}.usda")
-
-
-def _warm_up_extra(groups, folder: Path) -> None:
-    """The :data:`EXTRA_GROUPS` (see :func:`warm_up`), on :func:`tiny_shot` stages in ``folder``."""
-    from pxr import Usd
-
-    from usd_gs.pipeline.shot import ShotProcessor
-    from usd_gs.usd.gaussian_prim import read_gaussian_prim
-    from usd_gs.usd.stage import open_stage
-
-    if "estimate" in groups:  # closed (a number of point lights) and open (auto: classified, sun and sky)
-        for mode in ("2", "auto"):
-            ShotProcessor(str(tiny_shot(folder)), str(folder / "est.lit.usdc"),
-                          ProcessOptions(lights=mode, frames="1-2")).shot_lights()
-        _mark("estimate")
-    if "skin" in groups:  # usd_gs.usd.skel: linear blend and dual quaternions, world and prim-local
-        stage = open_stage(str(tiny_shot(folder)))
-        for name in ("Avatar", "AvatarDQ"):
-            for world in (True, False):
-                read_gaussian_prim(stage.GetPrimAtPath(f"/World/Rig/{name}"), Usd.TimeCode(2), world=world)
-        _mark("skin")
-    if "directional" in groups:  # a DistantLight's shadow maps (and a SphereLight's): whole runs
-        for light in ("distant", "sphere"):
-            src = tiny_shot(folder, light)
-            ShotProcessor(str(src), str(folder / f"{src.stem}.lit.usdc"), ProcessOptions(lights="stage")).run(False)
-        _mark("directional")
-    if "render" in groups:  # usdgs render: the preview rasteriser, on an input and a processed stage
-        from usd_gs.render.preview import render_stage_frame
-
-        src = tiny_shot(folder)
-        out = folder / "render.lit.usdc"
-        ShotProcessor(str(src), str(out), ProcessOptions(lights="2", frames="1")).run(False)
-        for path in (src, out):
-            render_stage_frame(open_stage(str(path)), 1.0, width=32)
-        _mark("render")
-    if "process" in groups:  # the catch-all: usdgs process on the tiny shot, estimated lights
-        ShotProcessor(str(tiny_shot(folder)), str(folder / "shot.lit.usdc"), ProcessOptions(frames="1-2")).run(False)
-        _mark("process")
-
-
 def warm_up(groups=GROUPS) -> None:
     """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
     shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
     ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
-    shared atlas, light combination). The :data:`EXTRA_GROUPS`, for ``usdgs warmup``: ``estimate``
-    the light estimation (closed and open captures), ``skin`` UsdSkel skinning of Gaussians,
-    ``directional`` whole runs lit by a DistantLight and by a SphereLight, ``render`` the preview
-    renders of ``usdgs render``, ``process`` a whole run with estimated lights (what the others
-    left). Marks each group when done (see :func:`start`)."""
-    extra = [g for g in groups if g in EXTRA_GROUPS]
-    if extra:
-        folder = Path(tempfile.mkdtemp(prefix="usdgs_warmup_shot_"))
-        try:
-            _warm_up_extra(extra, folder)
-        finally:
-            shutil.rmtree(folder, ignore_errors=True)
-    if not any(g in GROUPS for g in groups):
-        return
+    shared atlas, light combination). Marks each group when done (see :func:`start`). The rest of
+    what the commands compile is warmed by ``usd_gs.pipeline.machine_warmup`` (``usdgs warmup``)."""
     opts = ProcessOptions().check()
     avatar, scene = _tiny_scene()
     light = ShotLight("Light_0", "point", np.array([0.3, 2.5, 0.1]))
@@ -343,47 +213,12 @@ def warm_up(groups=GROUPS) -> None:
         _mark("shadows")
 
 
-def _record_compilations(report: str, groups) -> None:
-    """Run :func:`warm_up` for ``groups`` and write to ``report`` a JSON object: ``compiled``, the
-    top-level numba compilations (``module.function``, one per new signature: a cache miss),
-    ``compile_s`` their summed seconds and ``wall_s`` the group's wall time."""
-    import json
-
-    from numba.core import event
-
-    compiled, stack = [], []
-
-    class _Listener(event.Listener):
-        def on_start(self, ev):
-            stack.append(time.perf_counter())
-
-        def on_end(self, ev):
-            t = time.perf_counter() - stack.pop()
-            if not stack:
-                fn = getattr(ev.data.get("dispatcher"), "py_func", None)
-                compiled.append((f"{fn.__module__}.{fn.__qualname__}" if fn is not None else "?", t))
-
-    event.register("numba:compile", _Listener())
-    t0 = time.perf_counter()
-    warm_up(groups)
-    out = {"groups": list(groups), "compiled": [k for k, _ in compiled], "compile_s": sum(t for _, t in compiled),
-           "wall_s": time.perf_counter() - t0}
-    from usd_gs.io.atomic import atomic_output
-
-    with atomic_output(report) as tmp:
-        Path(tmp).write_text(json.dumps(out))
-
-
 if __name__ == "__main__":
-    unknown = set(sys.argv[1:]) - set(ALL_GROUPS)
+    unknown = set(sys.argv[1:]) - set(GROUPS)
     if unknown:
-        raise SystemExit(f"usd_gs.pipeline.jit_warmup: unknown group(s) {sorted(unknown)}; groups are {ALL_GROUPS}")
+        raise SystemExit(f"usd_gs.pipeline.jit_warmup: unknown group(s) {sorted(unknown)}; groups are {GROUPS}")
     wanted = os.environ.get("USDGS_JIT_WARMUP_PACKAGE")
     if wanted and wanted != _package_dir():
         # another copy of the package than the main process's: its cache entries would not be used
         raise SystemExit(f"usd_gs.pipeline.jit_warmup: this is {_package_dir()}, the main process runs {wanted}")
-    report = os.environ.get("USDGS_JIT_WARMUP_REPORT")
-    if report:  # usdgs warmup: which kernels this process compiled (not loaded from the cache), and how long
-        _record_compilations(report, tuple(sys.argv[1:]) or GROUPS)
-    else:
-        warm_up(tuple(sys.argv[1:]) or GROUPS)
+    warm_up(tuple(sys.argv[1:]) or GROUPS)
