@@ -42,6 +42,8 @@ def build_options(args):
         kw["aovs"] = tuple(kw["aovs"])
     if args.lights_per_frame:
         kw["lights_per_frame"] = True
+    if getattr(args, "bake_skinning", False):
+        kw["bake_skinning"] = True
     if getattr(args, "allow_missing", False):
         kw["allow_missing"] = True
     return ProcessOptions(dgsm=replace(dgsm_config(cfg), **dgsm_kw), **role_paths(args), **kw)

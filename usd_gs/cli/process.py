@@ -105,6 +105,9 @@ def register_process(sub, formatter):
     p.add_argument("--precision", choices=("half", "float"),
                    help="precision of the SH written: half (radiance:sphericalHarmonicsCoefficientsh, the float "
                         "attribute blocked in the output layer; default) or float")
+    p.add_argument("--bake-skinning", action="store_true",
+                   help="also author the skinned Gaussians of UsdSkel-bound prims as time samples in the output "
+                        "layer and block their binding there (for viewers without UsdSkel support for splats)")
     p.add_argument("--sh-tolerance", type=float, metavar="C",
                    help="hold an SH sample while no display colour moves by C or more (0..0.1; default 1/512, half "
                         "an 8-bit step; 0 writes every change)")

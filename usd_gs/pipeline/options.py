@@ -54,6 +54,7 @@ class ProcessOptions:
     precision: str = "half"  # of the SH written: 'half' | 'float'
     sh_tolerance: float = SH_TOLERANCE  # display-colour change below which an SH sample is held
     allow_missing: bool = False  # open an input whose sublayers/references are partly missing
+    bake_skinning: bool = False  # also author skinned prims' Gaussians as time samples (viewers without UsdSkel)
 
     def check(self) -> ProcessOptions:
         if self.direct_fraction is not None and not 0.0 <= self.direct_fraction <= 1.0:

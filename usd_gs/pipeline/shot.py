@@ -63,6 +63,7 @@ from usd_gs.usd.output_author import OutputAuthor
 from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.skel import has_skel_binding
+from usd_gs.usd.skel_bake import bake_skinning
 from usd_gs.usd.stage import open_stage
 
 __all__ = ["ProcessOptions", "ProcessSummary", "ShotProcessor", "default_output_path"]
@@ -530,6 +531,15 @@ class ShotProcessor:
             out.append(replace(lt, color=self._scene_packs[key], intensity=1.0, radius=0.0, shape="point"))
         return out
 
+    def _bake_skinning(self, out_stage) -> None:
+        """``--bake-skinning``: every UsdSkel-bound prim's skinned Gaussians as time samples at the
+        processed frames in the output layer, its binding blocked there (``usd_gs.usd.skel_bake``)."""
+        t0 = time.perf_counter()
+        for path, prim in self.prims.items():
+            if has_skel_binding(prim):
+                bake_skinning(out_stage, path, self.frames)
+        self.clock.add("bake_skinning", t0)
+
     def _calibration_centre(self, fallback):
         """The first relit prim's alpha-weighted centroid at the shot's first frame (cached)."""
         if self._calib_centre is None:
@@ -814,6 +824,8 @@ class ShotProcessor:
                 if bar:
                     bar.close()
                 self.clock.add("frames", t_frames)
+                if self.opts.bake_skinning:
+                    self._bake_skinning(out.stage)
                 t0 = time.perf_counter()
             self.clock.add("save", t0)
             self._commit_probes(probe_dir)

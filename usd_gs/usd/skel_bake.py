@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pxr import Sdf, Usd, UsdSkel
 
-from usd_gs.usd.gaussian_prim import read_gaussian_prim, write_gaussian_prim
+from usd_gs.usd.gaussian_prim import RAW_LOG_SCALES, RAW_LOGIT_OPACITIES, read_gaussian_prim, write_gaussian_prim
 from usd_gs.usd.skel import SKEL_REL, BindingError, clear_caches, has_skel_binding
 
 
@@ -26,6 +26,9 @@ def bake_skinning(stage: Usd.Stage, prim_path, times) -> int:
         raise BindingError(str(prim_path), SKEL_REL, "is not a skinned Gaussian prim (no UsdSkel binding)")
     frames = [(float(t), read_gaussian_prim(prim, float(t), world=False)) for t in times]
     UsdSkel.BindingAPI(prim).GetSkeletonRel().SetTargets([])
+    for name in (RAW_LOG_SCALES, RAW_LOGIT_OPACITIES):  # the bind pose's raw PLY values no longer apply
+        if prim.HasAttribute(name):
+            prim.GetAttribute(name).Block()
     for t, g in frames:
         write_gaussian_prim(stage, prim.GetPath(), g, time=t, keep_raw=False)
     clear_caches()
