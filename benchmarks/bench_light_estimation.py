@@ -30,8 +30,8 @@ sys.path.insert(0, str(ROOT))
 
 from lights_scene import make_emitter_test_scene, read_capture  # noqa: E402
 
+from usd_gs.gaussians import alpha_weighted_centroid  # noqa: E402
 from usd_gs.relight.light_estimation import LightEstimationConfig, estimate_lights, make_viewpoints  # noqa: E402
-from usd_gs.gaussians import alpha_weighted_centroid
 
 DATA = ROOT.parent / "shared" / "data" / "splats"
 

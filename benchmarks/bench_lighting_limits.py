@@ -27,8 +27,8 @@ import numpy as np
 
 
 def occlusion_ablation() -> None:
-    from usd_gs.relight import parallax as pp
     from usd_gs.evaluation.relight_groundtruth import relight_ground_truth
+    from usd_gs.relight import parallax as pp
 
     scenes = ((True, True), (False, True), (True, False), (False, False))
 
@@ -72,11 +72,11 @@ def lamp_energy() -> None:
 
 
 def apf_limits() -> None:
-    from usd_gs.evaluation import relight_groundtruth as gt
     from usd_gs import sh3dgs
+    from usd_gs.evaluation import relight_groundtruth as gt
     from usd_gs.evaluation.colorimetry import luminance
-    from usd_gs.gaussians import quaternion_to_matrix
     from usd_gs.evaluation.lighting_metrics import apf_y, fit_factorization, lighting_consistency, pseudo_normals
+    from usd_gs.gaussians import quaternion_to_matrix
 
     scene = gt.make_scene(12000, (16, 32), props=True)
     av = gt.make_avatar(4000)
@@ -108,8 +108,6 @@ def demo_limits() -> None:
     from usd_gs import sh3dgs
     from usd_gs.cli.process import is_missing_demo, make_missing_demo
     from usd_gs.evaluation.colorimetry import luminance
-    from usd_gs.gaussians import GaussianSet
-    from usd_gs.gaussians import alpha_weighted_centroid
     from usd_gs.evaluation.lighting_metrics import (
         PAA_MIN_RANK,
         fit_factorization,
@@ -118,10 +116,11 @@ def demo_limits() -> None:
         pseudo_normals,
         scene_lighting,
     )
-    from usd_gs.relight.probe import render_probe_faces
+    from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
     from usd_gs.relight.parallax import ProbeBlend, cube_texels, reprojected_probes
-    from usd_gs.usd.stage import open_stage
+    from usd_gs.relight.probe import render_probe_faces
     from usd_gs.usd.gaussian_prim import find_gaussian_prims, read_gaussian_prim
+    from usd_gs.usd.stage import open_stage
 
     path = "stages/demo.usda"
     if is_missing_demo(path):

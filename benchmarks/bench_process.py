@@ -45,8 +45,8 @@ def make_large_shot(demo: Path, workdir: Path, factor: int = 9) -> Path:
     """A shot = the demo + ``factor`` x the room's Gaussian count, bricked, 40 m away."""
     from pxr import Sdf, Usd
 
-    from usd_gs.usd.bricks import write_bricked
     from usd_gs.synthetic import random_gaussians
+    from usd_gs.usd.bricks import write_bricked
     from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic
 
     stage = Usd.Stage.Open(str(demo))

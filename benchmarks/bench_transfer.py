@@ -89,7 +89,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--q", type=float, default=1.0)
-    ap.add_argument("--dome", action="store_true", help="only run the HDR sky-dome probe check (needs usd_gs.render.rasterize)")
+    ap.add_argument("--dome", action="store_true",
+                    help="only run the HDR sky-dome probe check (needs usd_gs.render.rasterize)")
     args = ap.parse_args()
     if args.dome:
         dome_check()

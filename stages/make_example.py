@@ -49,8 +49,8 @@ def _blob(n, centre, radii, colour, sigma, rng):
 def make_example(out: Path) -> Path:
     from pxr import Gf, UsdGeom
 
-    from usd_gs.usd.schema import apply_role
     from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
 
     rng = np.random.default_rng(7)
     stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")

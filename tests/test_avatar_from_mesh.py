@@ -211,8 +211,8 @@ def test_inset_moves_centres_inwards_along_the_normal(sphere):
 def _silhouettes(g, verts, faces, views, size=800):
     """(alpha (K, H, W), mesh mask (K, H, W), pixel size m) of ``g`` (no low-pass dilation) and of
     the mesh (ray cast) from cameras at ``views`` [(eye, target)] with a 2.2 m tall field."""
-    from usd_gs.render.camera import Camera
     from usd_gs.evaluation.shadow_metrics import ray_intersector
+    from usd_gs.render.camera import Camera
     from usd_gs.render.rasterize import render
 
     inter = ray_intersector(verts, faces)

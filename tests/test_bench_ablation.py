@@ -42,8 +42,8 @@ def test_variant_list_covers_the_ablations():
 def sphere_frame():
     import test_metrics_shadow as tm
 
-    from usd_gs.render.camera import Camera
     from usd_gs.evaluation.shadow_stage import FrameInputs
+    from usd_gs.render.camera import Camera
     from usd_gs.shadows.shot import Receivers
 
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=tm.R_SPHERE)

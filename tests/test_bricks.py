@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from usd_gs.usd.bricks import brick_indices
 from usd_gs.cli import main
 from usd_gs.errors import UserError
 from usd_gs.synthetic import random_gaussians
+from usd_gs.usd.bricks import brick_indices
 
 
 def test_bricks_partition_with_bounded_sizes():

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from numba_kernels.cubemap_dirs import cube_face_directions
-from usd_gs.render.camera import CUBE_FACE_NAMES, Camera, cube_face_cameras
 from usd_gs.errors import UserError
+from usd_gs.render.camera import CUBE_FACE_NAMES, Camera, cube_face_cameras
 
 
 def test_look_at_projects_target_to_centre_and_up_upward():

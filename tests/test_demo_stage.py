@@ -10,14 +10,14 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux  # noqa: E402
 
 import usd_gs  # noqa: F401  (registers the role schema before any stage is opened)
-from usd_gs.demo import stage as ds
 from usd_gs import sh3dgs
 from usd_gs.cli import main
-from usd_gs.errors import UserError
+from usd_gs.demo import stage as ds
 from usd_gs.demo.room import PART_LAMP, make_room
-from usd_gs.usd.schema import read_role  # noqa: E402
+from usd_gs.errors import UserError
 from usd_gs.usd import skel as uskel  # noqa: E402
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, read_gaussian_prim  # noqa: E402
+from usd_gs.usd.schema import read_role  # noqa: E402
 from usd_gs.usd.validate import validate_stage  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -118,8 +118,8 @@ def test_lamp_ground_truth(stage):
     np.testing.assert_allclose(inten, [lp.intensity for lp in lamps], atol=0)
     np.testing.assert_allclose(np.array(world.GetCustomDataByKey("usdgs:demo:roomSize")), [8, 3, 8])
     # The room's emitters (the brightest Gaussians) sit at the recorded lamps.
-    from usd_gs.usd.bricks import brick_indices
     from usd_gs.gaussians import GaussianSet
+    from usd_gs.usd.bricks import brick_indices
 
     room = make_room(density=ds.QUICK.room_density)
     order = np.concatenate(brick_indices(room.gaussians.positions, ds.QUICK.room_brick_size))
@@ -387,9 +387,9 @@ def test_shadow_detail_holds_cesium_mans_shadows():
     weighted as the pipeline does) falls inside the 2 m evaluation ROI, over the walk loop, lies
     in a SHADOW_DETAIL box (the check can fail: the shadow reaches x > 0.2 outside the ROI)."""
     from usd_gs.demo.mesh_avatar import posed_meshes
+    from usd_gs.evaluation.shadow_metrics import mesh_shadow_matte
     from usd_gs.io.gltf import load_skinned_mesh
     from usd_gs.usd.lux import ShotLight
-    from usd_gs.evaluation.shadow_metrics import mesh_shadow_matte
 
     lights = [ShotLight(f"lamp{i}", "point", lp.position, color=lp.color, intensity=lp.intensity)
               for i, lp in enumerate(make_room(density=10.0).lamps)]

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from usd_gs.usd.stage import open_stage
 from usd_gs.usd.gaussian_prim import find_gaussian_prims, read_gaussian_prim
+from usd_gs.usd.stage import open_stage
 from usd_gs.usd.validate import validate_stage
 
 STAGES = Path(__file__).resolve().parents[1] / "stages"

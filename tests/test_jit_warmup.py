@@ -59,7 +59,8 @@ def test_starts_only_on_a_cold_cache(tmp_path, monkeypatch):
     jit_warmup.stop(None)
     # an empty cache directory is cold
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nbcache"))
-    r = subprocess.run([sys.executable, "-c", "from usd_gs.pipeline import jit_warmup; print(jit_warmup.cache_is_cold())"],
+    code = "from usd_gs.pipeline import jit_warmup; print(jit_warmup.cache_is_cold())"
+    r = subprocess.run([sys.executable, "-c", code],
                        capture_output=True, text=True, env=env, check=True)
     assert r.stdout.strip() == "True"
 
@@ -81,7 +82,8 @@ def test_warm_up_process_imports_the_main_process_package(tmp_path):
     here = str(Path(usd_gs.__file__).resolve().parent.parent)  # the copy this test imported, absolute
     env = dict(os.environ, USDGS_JIT_WARMUP_PACKAGE=str(tmp_path / "elsewhere"), NUMBA_CACHE_DIR=str(tmp_path / "c"),
                PYTHONPATH=here)
-    r = subprocess.run([sys.executable, "-P", "-m", "usd_gs.pipeline.jit_warmup", "relight"], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-P", "-m", "usd_gs.pipeline.jit_warmup", "relight"],
+                       capture_output=True, text=True,
                        env=env, cwd=tmp_path)
     assert r.returncode != 0 and "the main process runs" in r.stderr
     assert not (tmp_path / "c").exists() or not any((tmp_path / "c").rglob("*.nbi"))

@@ -8,11 +8,11 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
 from usd_gs.cli import main
-from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS, TRANSMITTANCE
-from usd_gs.usd.schema import apply_role
 from usd_gs.sh3dgs import C0
 from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.gaussian_prim import read_gaussian_prim, write_gaussian_prim
+from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS, TRANSMITTANCE
+from usd_gs.usd.schema import apply_role
 
 
 def test_rotated_prim_gets_local_frame_sh(quick_demo, tmp_path):

@@ -6,8 +6,8 @@ import trimesh
 
 from usd_gs import sh3dgs
 from usd_gs.demo.mesh_avatar import gaussians_on_mesh, sample_surface
-from usd_gs.evaluation.colorimetry import luminance, rgb_to_lab
 from usd_gs.errors import UserError
+from usd_gs.evaluation.colorimetry import luminance, rgb_to_lab
 from usd_gs.evaluation.lighting_metrics import (
     apf_y,
     emd_2d,
@@ -158,9 +158,9 @@ def test_lighting_consistency_for_stage(tmp_path):
     from pxr import Sdf, Usd, Vt
 
     from usd_gs.evaluation.lighting_stage import lighting_consistency_for_stage
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
     from usd_gs.usd.output_author import LIGHT_SCALE, SH_COEFFS
     from usd_gs.usd.schema import apply_role
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
 
     tint = (1.0, 0.8, 0.55)
     avatar = sphere(0.4, 2000)
@@ -230,8 +230,8 @@ def test_paa_compares_only_what_the_scene_normals_determine():
 def test_visible_from_hides_what_a_ball_covers():
     """A floor patch under a ball, seen from above: hidden = the segment to the eye crosses the
     ball (analytic ray-sphere test), for the floor and for the ball's own far side."""
-    from usd_gs.gaussians import GaussianSet
     from usd_gs.evaluation.point_visibility import visible_from
+    from usd_gs.gaussians import GaussianSet
 
     plane = trimesh.Trimesh([[-1.5, 0, -1.5], [1.5, 0, -1.5], [1.5, 0, 1.5], [-1.5, 0, 1.5]], [[0, 2, 1], [0, 3, 2]])
     face, bary = sample_surface(plane.vertices, plane.faces, 30000, 1)

@@ -9,9 +9,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from usd_gs.render.camera import Camera
-from usd_gs.gaussians import GaussianSet
-from usd_gs.usd.lux import ShotLight
 from usd_gs.evaluation.shadow_metrics import (
     boundary_f_measure,
     mask_boundary,
@@ -20,6 +17,9 @@ from usd_gs.evaluation.shadow_metrics import (
     shadow_metrics,
     surface_points,
 )
+from usd_gs.gaussians import GaussianSet
+from usd_gs.render.camera import Camera
+from usd_gs.usd.lux import ShotLight
 
 
 def _disc(shape, cy, cx, r):

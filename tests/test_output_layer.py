@@ -12,9 +12,9 @@ import pytest
 from pxr import Sdf, Usd, Vt
 
 from usd_gs.errors import InputFormatError, UserError
-from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim
+from usd_gs.usd.output_layer import OutputLayer
 
 META = {"upAxis": "Z", "metersPerUnit": 0.01, "timeCodesPerSecond": 48.0, "framesPerSecond": 24.0,
         "startTimeCode": 1001.0, "endTimeCode": 1100.0, "documentation": "captured scene"}

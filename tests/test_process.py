@@ -78,9 +78,9 @@ def test_scene_transmittance_matches_exact_reference(processed):
     receiver centres (every caster, every light, combined as the pipeline does). The error
     left is the atlas discretisation (512^2 directions x 64 radial bins)."""
     from usd_gs.gaussians import GaussianSet
-    from usd_gs.usd.lux import read_stage_lights
-    from usd_gs.shadows.shading import combine_lights, light_shares
     from usd_gs.shadows.dgsm import exact_transmittance
+    from usd_gs.shadows.shading import combine_lights, light_shares
+    from usd_gs.usd.lux import read_stage_lights
 
     out, _, _ = processed
     stage = Usd.Stage.Open(str(out))
@@ -250,9 +250,9 @@ def test_fresh_checkout_generates_the_missing_demo_stage(tmp_path, monkeypatch, 
     """`usdgs process stages/demo.usda` in a checkout where the (git-ignored) demo was never made:
     the demo is generated first (here the --quick one, for time), then processed. Any other
     missing stage is still an error naming the file."""
-    from usd_gs.demo import stage as demo_stage
     from usd_gs.cli import main
     from usd_gs.cli.process import is_missing_demo
+    from usd_gs.demo import stage as demo_stage
 
     stages = tmp_path / "stages"
     stages.mkdir()

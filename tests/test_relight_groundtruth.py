@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from usd_gs import sh3dgs
-from usd_gs.evaluation.relight_groundtruth import avatar_ground_truth, make_avatar, make_scene, psnr, relight_ground_truth
+from usd_gs.evaluation.relight_groundtruth import (
+    avatar_ground_truth,
+    make_avatar,
+    make_scene,
+    psnr,
+    relight_ground_truth,
+)
 
 
 def test_bake_matches_the_analytic_lamp_on_the_floor():

@@ -7,11 +7,11 @@ import pytest
 from PIL import Image
 from pxr import Gf, Usd, UsdGeom
 
-from usd_gs.render.camera import Camera
 from usd_gs.cli import main
 from usd_gs.cli.render import frame_path
 from usd_gs.demo.stage import CAMERA_APERTURE_MM
 from usd_gs.gaussians import GaussianSet
+from usd_gs.render.camera import Camera
 from usd_gs.render.preview import (
     drawn_gaussian_prims,
     framing_camera,
@@ -20,9 +20,9 @@ from usd_gs.render.preview import (
     resolve_camera,
 )
 from usd_gs.render.rasterize import render
-from usd_gs.usd.stage import open_stage
 from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim
+from usd_gs.usd.stage import open_stage
 
 W = 160
 H = round(W * CAMERA_APERTURE_MM[1] / CAMERA_APERTURE_MM[0])  # 90: height from the 16:9 aperture

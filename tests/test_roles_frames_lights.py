@@ -6,10 +6,10 @@ from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from usd_gs.errors import UserError
 from usd_gs.usd.frames import parse_frames
+from usd_gs.usd.gaussian_prim import GaussianPrimInfo
 from usd_gs.usd.lux import ShotLight, read_stage_lights, write_estimated_lights
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.schema import RoleInfo
-from usd_gs.usd.gaussian_prim import GaussianPrimInfo
 
 
 def info(path, animated=False, role="auto"):

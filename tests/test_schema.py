@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from pxr import Sdf, Usd
 
-from usd_gs.usd import schema
 from usd_gs.errors import UserError
+from usd_gs.usd import schema
 from usd_gs.usd.schema import ROLE_API, ROLES, RoleInfo, apply_role, read_role, register_plugins, schema_dir
 
 REPO = Path(__file__).resolve().parents[1]

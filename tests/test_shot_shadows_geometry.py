@@ -3,8 +3,8 @@
 import numpy as np
 
 from usd_gs.gaussians import GaussianSet
-from usd_gs.usd.lux import ShotLight
 from usd_gs.shadows.shot import occluders_toward, shadow_cone_indices
+from usd_gs.usd.lux import ShotLight
 
 RNG = np.random.default_rng(4)
 
