@@ -193,12 +193,11 @@ def makehuman_source(obj, mhskel, mhw, tpose: bool = True, influences: int = 4) 
                      rest_local, heads, tails, notes=notes)
 
 
-def gltf_source(path, fps: float = FPS) -> RigSource:
-    """A :class:`RigSource` from a skinned .glb, bound at its rest pose, with its animation sampled
-    at ``fps`` over one loop (``usd_gs.io.gltf``)."""
-    from usd_gs.io.gltf import load_skinned_mesh, loop_period, node_global_matrices, pose
-
-    mesh = load_skinned_mesh(path)
+def _gltf_joint_order(mesh) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """(order: skin joint indices, parents first; new_index (J,): the position of each skin joint in
+    that order; parents (J,) int64 in that order, -1 for a root)
+    of a ``usd_gs.io.gltf.SkinnedMesh``: the parent of a joint is its nearest ancestor node that is
+    a joint."""
     nodes = mesh.joint_nodes
     node_to_joint = {int(n): j for j, n in enumerate(nodes)}
     jparent = []
@@ -216,7 +215,17 @@ def gltf_source(path, fps: float = FPS) -> RigSource:
                 placed.add(j)
     new_index = np.empty(len(nodes), np.int64)
     new_index[order] = np.arange(len(order))
-    parents = np.array([new_index[jparent[j]] if jparent[j] >= 0 else -1 for j in order], np.int64)
+    return order, new_index, np.array([new_index[jparent[j]] if jparent[j] >= 0 else -1 for j in order], np.int64)
+
+
+def gltf_source(path, fps: float = FPS) -> RigSource:
+    """A :class:`RigSource` from a skinned .glb, bound at its rest pose, with its animation sampled
+    at ``fps`` over one loop (``usd_gs.io.gltf``)."""
+    from usd_gs.io.gltf import load_skinned_mesh, loop_period, node_global_matrices, pose
+
+    mesh = load_skinned_mesh(path)
+    nodes = mesh.joint_nodes
+    order, new_index, parents = _gltf_joint_order(mesh)
     names = [mesh.node_names[nodes[j]] or f"joint{j}" for j in order]
 
     def globals_at(t):
@@ -854,23 +863,7 @@ def gltf_skeleton(mesh):
     """(order (J,) skin joint indices parents first, parents (J,), UsdSkel joint paths (J,)) of a
     ``usd_gs.io.gltf.SkinnedMesh``: the parent of a joint is its nearest ancestor node that is a joint."""
     nodes = mesh.joint_nodes
-    node_to_joint = {int(n): j for j, n in enumerate(nodes)}
-    jparent = []
-    for n in nodes:
-        p = int(mesh.node_parents[n])
-        while p >= 0 and p not in node_to_joint:
-            p = int(mesh.node_parents[p])
-        jparent.append(node_to_joint.get(p, -1))
-    order: list[int] = []
-    placed: set[int] = set()
-    while len(order) < len(nodes):
-        for j in range(len(nodes)):
-            if j not in placed and (jparent[j] < 0 or jparent[j] in placed):
-                order.append(j)
-                placed.add(j)
-    new_index = np.empty(len(nodes), np.int64)
-    new_index[order] = np.arange(len(order))
-    parents = np.array([new_index[jparent[j]] if jparent[j] >= 0 else -1 for j in order], np.int64)
+    order, new_index, parents = _gltf_joint_order(mesh)
     src = RigSource("", np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 1), np.int32),
                     np.zeros((0, 1), np.float32), [mesh.node_names[nodes[j]] or f"joint{j}" for j in order], parents,
                     np.zeros((len(order), 4, 4)), np.zeros((len(order), 4, 4)), np.zeros((len(order), 3)),

@@ -306,7 +306,7 @@ def outdoor_avatar_truth(scene: OutdoorScene, avatar: GaussianSet, albedo: np.nd
     """Linear ground-truth colours (N, 3) ``albedo E / pi`` of the avatar (module docstring)."""
     from scipy.spatial import cKDTree
 
-    from usd_gs.evaluation.relight_groundtruth import _env_dirs, _first_hits, _intersector
+    from usd_gs.evaluation.relight_groundtruth import _env_dirs, _intersector, quadrature_irradiance
 
     rt = _intersector(scene.mesh)
     rt_self = _intersector(avatar_mesh)
@@ -315,17 +315,7 @@ def outdoor_avatar_truth(scene: OutdoorScene, avatar: GaussianSet, albedo: np.nd
     dirs, om, env = _env_dirs(scene.env, oversample)
     tree = cKDTree(scene.surfaces.positions.astype(np.float64))
     surf = srgb_decode(0.5 + sh3dgs.C0 * scene.surfaces.sh[:, 0, :].astype(np.float64))
-    e = np.zeros((avatar.count, 3))
-    for a in range(0, avatar.count, chunk):
-        b = min(avatar.count, a + chunk)
-        cos = np.maximum(nrm[a:b] @ dirs.T, 0.0)
-        i, j = np.nonzero(cos > 0)
-        hit, loc = _first_hits(rt, pts[a:b][i] + 1e-4 * nrm[a:b][i], dirs[j])
-        rad = env[j].copy()
-        if hit.any():
-            rad[hit] = surf[tree.query(loc[hit])[1]]
-        w = cos[i, j] * om[j]
-        e[a:b] = np.stack([np.bincount(i, w * rad[:, c], minlength=b - a) for c in range(3)], axis=1)
+    e = quadrature_irradiance(rt, pts, nrm, dirs, om, env, surf, tree, chunk)
     if scene.sun_e.max() > 0:
         e += _sun_irradiance(nrm, scene.sun_dir, scene.sun_e) * _sun_visibility(
             [rt, rt_self], pts, nrm, scene.sun_dir, [1e-4, skin_offsets(avatar)])[:, None]

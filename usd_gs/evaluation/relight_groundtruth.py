@@ -267,6 +267,26 @@ def make_avatar(n: int = 4000, height: float = 1.8, position=(0.0, 0.02, 0.0), s
     return g.transformed(m, label="avatar")
 
 
+def quadrature_irradiance(rt, pts, nrm, dirs, om, env, surf_rgb, tree, chunk: int = 2048) -> np.ndarray:
+    """(N, 3) irradiance at ``pts`` (N, 3) with unit normals ``nrm``: the quadrature over the unit
+    directions ``dirs`` (D, 3) of solid angles ``om`` (D,), each ray from just above the point
+    (1e-4 m along the normal) seeing either the environment radiance ``env`` (D, 3) or, where it
+    hits the mesh of the intersector ``rt``, the linear radiance ``surf_rgb`` of the nearest surface
+    Gaussian (``tree``: a KD-tree of their positions). ``chunk`` points at a time."""
+    e = np.zeros((pts.shape[0], 3))
+    for a in range(0, pts.shape[0], chunk):
+        b = min(pts.shape[0], a + chunk)
+        cos = np.maximum(nrm[a:b] @ dirs.T, 0.0)
+        i, j = np.nonzero(cos > 0)
+        hit, loc = _first_hits(rt, pts[a:b][i] + 1e-4 * nrm[a:b][i], dirs[j])
+        rad = env[j].copy()
+        if hit.any():
+            rad[hit] = surf_rgb[tree.query(loc[hit])[1]]
+        w = cos[i, j] * om[j]
+        e[a:b] = np.stack([np.bincount(i, w * rad[:, c], minlength=b - a) for c in range(3)], axis=1)
+    return e
+
+
 def avatar_ground_truth(scene: KnownLightScene, avatar: GaussianSet, albedo: np.ndarray, at=None,
                         chunk: int = 2048, oversample: int = 1) -> np.ndarray:
     """Ground-truth colours (N, 3) ``albedo * E / pi`` of the avatar (module docstring).
@@ -283,18 +303,8 @@ def avatar_ground_truth(scene: KnownLightScene, avatar: GaussianSet, albedo: np.
     dirs, om, env = _env_dirs(scene.env, oversample)
     tree = cKDTree(scene.surfaces.positions.astype(np.float64))
     surf_rgb = np.maximum(0.5 + sh3dgs.C0 * scene.surfaces.sh[:, 0, :].astype(np.float64), 0.0)
-    e = np.zeros((avatar.count, 3))
     if at is None:
-        for a in range(0, avatar.count, chunk):
-            b = min(avatar.count, a + chunk)
-            cos = np.maximum(nrm[a:b] @ dirs.T, 0.0)
-            i, j = np.nonzero(cos > 0)
-            hit, loc = _first_hits(rt, pts[a:b][i] + 1e-4 * nrm[a:b][i], dirs[j])
-            rad = env[j].copy()
-            if hit.any():
-                rad[hit] = surf_rgb[tree.query(loc[hit])[1]]
-            w = cos[i, j] * om[j]
-            e[a:b] = np.stack([np.bincount(i, w * rad[:, c], minlength=b - a) for c in range(3)], axis=1)
+        e = quadrature_irradiance(rt, pts, nrm, dirs, om, env, surf_rgb, tree, chunk)
     else:
         hit, loc = _first_hits(rt, np.tile(pts[0], (len(dirs), 1)), dirs)
         rad = env.copy()
