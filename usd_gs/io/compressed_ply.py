@@ -26,13 +26,12 @@ float32, the decode PlayCanvas splat-transform uses.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import plyfile
 
 from usd_gs.errors import InputFormatError, first_bad_index
 from usd_gs.gaussians import GaussianSet
+from usd_gs.io.checks import existing_file
 from usd_gs.io.ply import _LOG_SCALE_MAX, REST_COUNT_TO_DEGREE, scales_from_log
 
 SH_C0 = 0.28209479177387814
@@ -81,11 +80,7 @@ def read_compressed_ply(path) -> GaussianSet:
     differs from ``vertex`` or whose ``f_rest`` count is not 9/24/45, and non-finite bounds.
     """
     label = str(path)
-    p = Path(path)
-    if not p.exists():
-        raise InputFormatError(f"{label}: no such file")
-    if not p.is_file():
-        raise InputFormatError(f"{label}: not a regular file")
+    p = existing_file(path)
     try:
         ply = plyfile.PlyData.read(str(p), mmap="r")
     except plyfile.PlyHeaderParseError as exc:

@@ -49,6 +49,7 @@ from usd_gs.gaussians import (  # noqa: F401  (raw <-> linear conversions, re-ex
     scales_from_log,
 )
 from usd_gs.io.atomic import atomic_output
+from usd_gs.io.checks import existing_file
 
 #: number of ``f_rest_*`` properties -> SH degree
 REST_COUNT_TO_DEGREE = {0: 0, 9: 1, 24: 2, 45: 3}
@@ -214,11 +215,7 @@ def read_ply(path) -> GaussianSet:
     float32, and a zero quaternion.
     """
     label = str(path)
-    p = Path(path)
-    if not p.exists():
-        raise InputFormatError(f"{label}: no such file")
-    if not p.is_file():
-        raise InputFormatError(f"{label}: not a regular file")
+    p = existing_file(path)
     _check_claimed_size(label, p)
     try:
         ply = plyfile.PlyData.read(str(p), mmap="r")

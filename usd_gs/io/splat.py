@@ -23,13 +23,12 @@ same values splat-transform writes.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from usd_gs.errors import GaussianDataError, InputFormatError, first_bad_index
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
+from usd_gs.io.checks import existing_file
 
 SH_C0 = 0.28209479177387814
 RECORD_BYTES = 32
@@ -39,11 +38,7 @@ assert _RECORD.itemsize == RECORD_BYTES
 
 
 def _load_bytes(label: str, path) -> bytes | np.ndarray:
-    p = Path(path)
-    if not p.exists():
-        raise InputFormatError(f"{label}: no such file")
-    if not p.is_file():
-        raise InputFormatError(f"{label}: not a regular file")
+    p = existing_file(path)
     try:
         return np.fromfile(str(p), dtype=np.uint8)
     except OSError as exc:

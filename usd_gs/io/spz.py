@@ -45,13 +45,13 @@ from __future__ import annotations
 
 import struct
 import zlib
-from pathlib import Path
 
 import numpy as np
 
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
+from usd_gs.io.checks import existing_file
 from usd_gs.io.ply import scales_from_log
 
 SPZ_MAGIC = 0x5053474E
@@ -212,9 +212,7 @@ def read_spz(path, coordinates: str = "native") -> GaussianSet:
     """
     label = str(path)
     flip = _coords(label, coordinates)
-    p = Path(path)
-    if not p.is_file():
-        raise InputFormatError(f"{label}: no such file" if not p.exists() else f"{label}: not a regular file")
+    p = existing_file(path)
     try:
         data = p.read_bytes()
     except OSError as exc:
