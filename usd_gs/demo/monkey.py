@@ -17,6 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
+from usd_gs.io.formats import read_capture
+from usd_gs.io.sequence import frame_path, sequence_paths
+from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic
+from usd_gs.usd.schema import apply_role
+from usd_gs.usd.sequence_prim import write_sequence_prim
+
 MONKEY_PATTERN = "sequences/monkey/monkey_####.sog"
 MONKEY_FRAMES = 50
 MONKEY_HEIGHT = 0.45
@@ -50,11 +56,6 @@ def write_monkey_layer(frames: int, data_dir, path, fps: float = 24.0) -> int:
 
     Returns the Gaussian count of frame 1. Raises ``UserError`` naming a missing frame file.
     """
-    from usd_gs.io.formats import read_capture
-    from usd_gs.io.sequence import frame_path, sequence_paths
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic
-    from usd_gs.usd.schema import apply_role
-    from usd_gs.usd.sequence_prim import write_sequence_prim
 
     pattern = str(Path(data_dir) / MONKEY_PATTERN)
     sequence_paths(pattern, (1, min(frames, MONKEY_FRAMES)))  # every file present before any work

@@ -28,8 +28,27 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf, UsdSkel
 
+from usd_gs.demo.stage import (
+    BIKER_HEIGHT,
+    BIKER_ROTATION,
+    DemoOptions,
+    DemoResult,
+    _new_layer_stage,
+    _write_capture,
+    _write_cesium_man,
+    data_search_paths,
+    define_camera,
+    frame_times,
+    prepare_output,
+    usd_matrix,
+)
 from usd_gs.errors import UserError
+from usd_gs.io.splat import read_splat
+from usd_gs.relight.sun_estimation import ground_height
+from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
+from usd_gs.usd.schema import apply_role
 
 SEAL_FILE = "scenes/luma-seal.splat"
 OUTDOOR_FILES = {"seal": SEAL_FILE, "cesium_man": "humans/CesiumMan.glb", "biker": "splats/biker.ply"}
@@ -87,7 +106,6 @@ class OutdoorOptions:
 def locate_outdoor_data(explicit=None) -> Path:
     """The data directory holding :data:`OUTDOOR_FILES` (``explicit`` or the first
     ``shared/data`` found as in ``usd_gs.demo.stage.data_search_paths``)."""
-    from usd_gs.demo.stage import data_search_paths
 
     cands = [Path(explicit)] if explicit is not None else data_search_paths()
     for d in cands:
@@ -99,9 +117,6 @@ def locate_outdoor_data(explicit=None) -> Path:
 
 def seal_scene(path):
     """The seal capture turned Y-up with its pavement on y = 0 (a ``GaussianSet``, metres)."""
-    from usd_gs.demo.stage import usd_matrix
-    from usd_gs.io.splat import read_splat
-    from usd_gs.relight.sun_estimation import ground_height
 
     g = read_splat(path)
     up = g.transformed(usd_matrix(Y_DOWN_TO_UP, (0.0, 0.0, 0.0)), label="/World/Seal")
@@ -111,10 +126,6 @@ def seal_scene(path):
 
 
 def _write_seal(opts: OutdoorOptions, src: Path, path: Path) -> int:
-    from usd_gs.demo.stage import _new_layer_stage
-    from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
-
     g = seal_scene(src)
     g = replace(g, log_scales=None, logit_opacities=None, extras={})
     stage = _new_layer_stage(opts.frames)
@@ -125,14 +136,6 @@ def _write_seal(opts: OutdoorOptions, src: Path, path: Path) -> int:
 
 
 def _write_root(opts: OutdoorOptions, path: Path, data_folder: str) -> None:
-    from pxr import Sdf, UsdSkel
-
-    from usd_gs.demo.stage import (
-        _new_layer_stage,
-        define_camera,
-    )
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
-
     stage = _new_layer_stage(opts.frames)
     world = UsdSkel.Root.Define(stage, "/World").GetPrim()
     world.SetCustomDataByKey("usdgs:demo:generator", "usdgs demo make --outdoor " + " ".join(
@@ -151,16 +154,6 @@ def make_outdoor_demo(output="stages/outdoor.usda", options: OutdoorOptions | No
                       log=None):
     """Write the outdoor shot (module docstring) to ``output`` and its data layers beside it;
     returns a ``usd_gs.demo.stage.DemoResult``."""
-    from usd_gs.demo.stage import (
-        BIKER_HEIGHT,
-        BIKER_ROTATION,
-        DemoOptions,
-        DemoResult,
-        _write_capture,
-        _write_cesium_man,
-        frame_times,
-        prepare_output,
-    )
 
     t0 = _time.perf_counter()
     opts = options or OutdoorOptions()

@@ -41,9 +41,31 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel
 
-from usd_gs.errors import UserError
+from usd_gs.demo.mesh_avatar import (
+    AVATAR_INSET,
+    AVATAR_SIGMA_FACTOR,
+    face_areas,
+    gaussians_on_mesh,
+    sample_colors,
+    sample_surface,
+)
+from usd_gs.errors import GaussianDataError, UserError
 from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
+from usd_gs.io.bvh import read_bvh
+from usd_gs.io.gltf import load_skinned_mesh, loop_period, node_global_matrices, pose
+from usd_gs.io.makehuman import load_makehuman
+from usd_gs.io.ply import read_ply
+from usd_gs.usd import skel as uskel
+from usd_gs.usd.gaussian_prim import (
+    find_gaussian_prims,
+    new_stage,
+    read_gaussian_prim,
+    save_stage_atomic,
+    write_gaussian_prim,
+)
+from usd_gs.usd.schema import apply_role
 
 FPS = 24.0
 
@@ -152,7 +174,6 @@ def lbs(vertices, joint_indices, weights, skin) -> np.ndarray:
 # ----------------------------------------------------------------------------- sources
 def makehuman_source(obj, mhskel, mhw, tpose: bool = True, influences: int = 4) -> RigSource:
     """A :class:`RigSource` from MakeHuman files (module docstring); ``tpose`` poses the arms horizontal."""
-    from usd_gs.io.makehuman import load_makehuman
 
     mh = load_makehuman(obj, mhskel, mhw, influences=influences)
     used = np.unique(mh.faces)
@@ -221,7 +242,6 @@ def _gltf_joint_order(mesh) -> tuple[list[int], np.ndarray, np.ndarray]:
 def gltf_source(path, fps: float = FPS) -> RigSource:
     """A :class:`RigSource` from a skinned .glb, bound at its rest pose, with its animation sampled
     at ``fps`` over one loop (``usd_gs.io.gltf``)."""
-    from usd_gs.io.gltf import load_skinned_mesh, loop_period, node_global_matrices, pose
 
     mesh = load_skinned_mesh(path)
     nodes = mesh.joint_nodes
@@ -716,13 +736,10 @@ def read_avatar(path) -> GaussianSet:
     if not p.is_file():
         raise UserError(f"{p}: no such avatar file")
     if ext == ".ply":
-        from usd_gs.io.ply import read_ply
 
         return read_ply(p)
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
-        from pxr import Usd
 
-        from usd_gs.usd.gaussian_prim import find_gaussian_prims, read_gaussian_prim
 
         stage = Usd.Stage.Open(str(p))
         if stage is None:
@@ -751,11 +768,6 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     ``/Avatar/Skeleton/Motion`` SkelAnimation, ``/Avatar/Gaussians`` (bind-pose Gaussians, bound).
     Y-up, metres, ``timeCodesPerSecond`` = ``fps``, frames 1..T. ``skinning_method`` ``dq`` authors
     ``primvars:skel:skinningMethod`` dualQuaternion (UsdSkel's dual-quaternion skinning)."""
-    from pxr import Sdf, UsdGeom, UsdSkel
-
-    from usd_gs.usd import skel as uskel
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
 
     say = log or (lambda msg: None)
     if skinning_method not in ("lbs", "dq"):
@@ -770,7 +782,6 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
         m, info = align_to_mesh(gs, src.vertices, up=up, facing=facing, icp_iterations=icp_iterations,
                                 faces=src.faces)
     say(f"  aligned: {json.dumps({k: (round(v, 5) if isinstance(v, float) else v) for k, v in info.items()})}")
-    from usd_gs.errors import GaussianDataError
 
     try:
         rig_gs = gs.transformed(m.T, label=prim_path + "/Gaussians")
@@ -786,7 +797,6 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     if motion is not None:
         mp = Path(motion)
         if mp.suffix.lower() == ".bvh":
-            from usd_gs.io.bvh import read_bvh
 
             times, local = retarget_bvh(src, read_bvh(mp), parse_joint_map(joint_map), fps=fps, up=motion_up)
             lift = ground_motion(local, src.parents, src.bind, rig_gs.positions.astype(np.float64), idx, wts)
@@ -827,7 +837,6 @@ def rig_avatar(avatar, skin, output, skeleton=None, weights=None, motion=None, j
     save_stage_atomic(stage, output)
     result = RigResult(Path(output), rig_gs.count, len(joints), len(times), far, info, notes=list(src.notes))
     # stretch statistic over the motion (about 6 frames)
-    from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
     shares = []
     for f in range(1, len(times) + 1, max(1, len(times) // 6)):
@@ -886,19 +895,6 @@ def author_gltf_skinned_avatar(stage, mesh, prim_path: str, skel_path: str, time
     ({time code: 4x4 USD row-vector matrix}) places the skeleton (root motion) by an ``xformOp:transform``.
     The Gaussian prim and the skeleton must sit under a SkelRoot the caller provides. Returns the prim.
     """
-    from pxr import Gf, Sdf, UsdGeom
-
-    from usd_gs.demo.mesh_avatar import (
-        AVATAR_INSET,
-        AVATAR_SIGMA_FACTOR,
-        face_areas,
-        gaussians_on_mesh,
-        sample_colors,
-        sample_surface,
-    )
-    from usd_gs.io.gltf import loop_period, node_global_matrices, pose
-    from usd_gs.usd import skel as uskel
-    from usd_gs.usd.gaussian_prim import write_gaussian_prim
 
     rest_world = pose(mesh, None)[0]
     face, bary = sample_surface(rest_world, mesh.faces, n_gaussians, seed)
@@ -958,12 +954,6 @@ def write_rigged_avatar_layer(frames: int, data: Path, path: Path, fps: float = 
     ``prim_path + "_Skeleton"`` (MakeHuman skeleton, T-posed bind), walking on the spot with the
     MakeHuman walk (looped over ``frames`` at ``fps``), placed at :data:`RIGGED_PLACEMENT` by the
     skeleton's transform; ``/World`` is a SkelRoot (as in the demo's root layer). Returns the count."""
-    from pxr import Gf, UsdGeom, UsdSkel
-
-    from usd_gs.io.bvh import read_bvh
-    from usd_gs.usd import skel as uskel
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
 
     files = {k: Path(data) / v for k, v in RIGGED_FILES.items()}
     missing = [str(p) for p in files.values() if not p.is_file()]

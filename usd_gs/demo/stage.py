@@ -68,8 +68,19 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Sdf, UsdGeom, UsdSkel, Vt
 
+from usd_gs.demo.mesh_avatar import posed_meshes
+from usd_gs.demo.monkey import PRIM_PATH, write_monkey_layer
+from usd_gs.demo.rig import author_gltf_skinned_avatar, write_rigged_avatar_layer
+from usd_gs.demo.room import DetailRegion, make_room
 from usd_gs.errors import UserError
+from usd_gs.io.gltf import load_skinned_mesh
+from usd_gs.io.ply import read_ply
+from usd_gs.usd.bricks import write_bricked
+from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+from usd_gs.usd.schema import apply_role
+from usd_gs.usd.stage import USD_EXTENSIONS
 
 FPS = 24.0
 """Time codes (= frames) per second of the demo stage."""
@@ -304,8 +315,6 @@ def frame_times(frames: int) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- layers
 def _new_layer_stage(frames: int):
-    from usd_gs.usd.gaussian_prim import new_stage
-
     stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")
     stage.SetTimeCodesPerSecond(FPS)
     stage.SetFramesPerSecond(FPS)
@@ -331,7 +340,6 @@ def _subsample(g, n: int | None, seed: int):
 def room_detail(opts: DemoOptions) -> list:
     """The ``make_room`` detail regions of ``opts`` (:data:`SHADOW_DETAIL` at
     ``room_detail_density``; none when that is None or not above ``room_density``)."""
-    from usd_gs.demo.room import DetailRegion
 
     d = opts.room_detail_density
     if d is None or d <= opts.room_density:
@@ -340,10 +348,6 @@ def room_detail(opts: DemoOptions) -> list:
 
 
 def _write_room(opts: DemoOptions, path: Path):
-    from usd_gs.demo.room import make_room
-    from usd_gs.usd.bricks import write_bricked
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
-
     room = make_room(size=ROOM_SIZE, density=opts.room_density, seed=opts.seed, detail=room_detail(opts),
                      label="/World/Room")
     stage = _new_layer_stage(opts.frames)
@@ -353,14 +357,6 @@ def _write_room(opts: DemoOptions, path: Path):
 
 
 def _write_cesium_man(opts: DemoOptions, glb: Path, path: Path, walk=None) -> int:
-    from pxr import Sdf, UsdGeom, UsdSkel, Vt
-
-    from usd_gs.demo.mesh_avatar import posed_meshes
-    from usd_gs.demo.rig import author_gltf_skinned_avatar
-    from usd_gs.io.gltf import load_skinned_mesh
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
-    from usd_gs.usd.schema import apply_role
-
     mesh = load_skinned_mesh(glb)
     times = frame_times(opts.frames)
     meshes = posed_meshes(mesh, times, loop=True)
@@ -405,11 +401,6 @@ def _write_capture(opts: DemoOptions, ply: Path, path: Path, prim_path: str, rol
                    height: float, n: int | None, seed: int, translate: dict, rotate_y: dict) -> int:
     """A real capture placed canonically (baked into the points) and moved by xform time samples
     (``translate``/``rotate_y``: {time code: value}; one entry at time None = a default value)."""
-    from pxr import Gf, Sdf, UsdGeom
-
-    from usd_gs.io.ply import read_ply
-    from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
 
     full = read_ply(ply)
     m = canonical_matrix(full.positions, rot, height)  # from the full capture: --quick keeps the same frame
@@ -435,10 +426,6 @@ def _write_capture(opts: DemoOptions, ply: Path, path: Path, prim_path: str, rol
 
 
 def _write_root(opts: DemoOptions, path: Path, data_folder: str, room) -> None:
-    from pxr import Gf, Sdf, UsdSkel, Vt
-
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
-
     stage = _new_layer_stage(opts.frames)
     # SkelRoot: CesiumMan is a skinned Gaussian prim (UsdSkel skins only below a SkelRoot)
     world = UsdSkel.Root.Define(stage, "/World").GetPrim()
@@ -468,7 +455,6 @@ def _write_root(opts: DemoOptions, path: Path, data_folder: str, room) -> None:
 def define_camera(stage, eye, target):
     """``/World/Camera``: the demo's perspective camera (focal length, aperture and clipping of
     this module's ``CAMERA_*`` constants) at ``eye`` looking at ``target`` (metres, Y-up)."""
-    from pxr import Gf, UsdGeom
 
     cam = UsdGeom.Camera.Define(stage, "/World/Camera")
     cam.CreateProjectionAttr(UsdGeom.Tokens.perspective)
@@ -495,7 +481,6 @@ def data_folder_for(root: Path) -> Path:
 def prepare_output(output) -> tuple[Path, Path]:
     """``(root layer path, data folder)`` of a demo shot written to ``output`` (a USD file name):
     absolute paths, the data folder created; ``UserError`` naming ``output`` otherwise."""
-    from usd_gs.usd.stage import USD_EXTENSIONS
 
     root = Path(os.path.abspath(os.fspath(output)))
     if root.suffix.lower() not in USD_EXTENSIONS:
@@ -549,12 +534,10 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
         translate={None: GUITAR_POSITION},
         rotate_y={f: GUITAR_HEADING_DEG + GUITAR_TURN_DEG_PER_S * t for f, t in enumerate(times, start=1)})
     if opts.monkey:
-        from usd_gs.demo.monkey import PRIM_PATH, write_monkey_layer
 
         say("  monkey (SOG flipbook) ...")
         counts[PRIM_PATH] = write_monkey_layer(opts.frames, data, layers["monkey"], FPS)
     if opts.rigged_avatar:
-        from usd_gs.demo.rig import write_rigged_avatar_layer
 
         say("  rigged T-pose avatar (MakeHuman skeleton, walk) ...")
         counts["/World/TPoseAvatar"] = write_rigged_avatar_layer(opts.frames, data, layers["tpose_avatar"], FPS)

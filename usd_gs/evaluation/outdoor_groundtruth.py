@@ -41,9 +41,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from numba_kernels.normals import gaussian_normals
 from usd_gs import sh3dgs
+from usd_gs.demo.mesh_avatar import AVATAR_INSET, gaussians_on_mesh, posed_avatar_frames, posed_meshes, sample_surface
+from usd_gs.demo.stage import canonical_matrix, locate_data_dir
+from usd_gs.evaluation.colorimetry import luminance
+from usd_gs.evaluation.relight_groundtruth import (
+    _direct_irradiance,
+    _env_dirs,
+    _first_hits,
+    _intersector,
+    psnr,
+    quadrature_irradiance,
+    relight_like_process,
+)
 from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
+from usd_gs.io import envmap
+from usd_gs.io.gltf import load_skinned_mesh
+from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.relight.colorspace import srgb_decode, srgb_encode
+from usd_gs.relight.direct import cap_irradiance, self_shadow_samples
+from usd_gs.shadows.shot import Receivers, caster_transmittance, receiver_points, shared_transmittance
+from usd_gs.usd.lux import ShotLight
 
 SKIES = ("clear", "kiara", "overcast")
 SUN_ANGLE = 0.53
@@ -65,7 +84,6 @@ class OutdoorScene:
 
     def lights(self) -> list:
         """The authored lights: the sun (if any) and the sky dome, as ``ShotLight``."""
-        from usd_gs.usd.lux import ShotLight
 
         out = []
         if self.sun_e.max() > 0:
@@ -106,7 +124,6 @@ def sky_image(sky: str, size=(32, 64), sun_dir=None, sky_e: float = 0.8):
     horizontal surface receives ``sky_e`` from the sky alone (unoccluded). For 'kiara' the sun
     direction is the HDR's and the share is the removed sun's irradiance over the sky's
     (horizontal), else None."""
-    from usd_gs.io import envmap
 
     h, w = size
     dirs = envmap.latlong_directions(h, w)
@@ -118,8 +135,6 @@ def sky_image(sky: str, size=(32, 64), sun_dir=None, sky_e: float = 0.8):
     elif sky == "overcast":
         img = (np.where(dirs[..., 1] > 0, (1 + 2 * dirs[..., 1]) / 3, 0.0))[..., None] * np.array([1.0, 1.0, 1.02])
     elif sky == "kiara":
-        from usd_gs.demo.stage import locate_data_dir
-        from usd_gs.evaluation.colorimetry import luminance
 
         full = np.asarray(envmap.read_envmap(locate_data_dir() / "hdri" / "kiara_1_dawn_1k.hdr"), np.float64)
         fh, fw = full.shape[:2]
@@ -213,7 +228,6 @@ at ``position + (AVATAR_INSET sigma + SKIN_CLEARANCE) normal``, the skin point a
 
 def skin_offsets(avatar: GaussianSet) -> np.ndarray:
     """(N,) metres from each avatar Gaussian's centre to just above the skin (:data:`SKIN_CLEARANCE`)."""
-    from usd_gs.demo.mesh_avatar import AVATAR_INSET
 
     return AVATAR_INSET * avatar.scales[:, 0].astype(np.float64) + SKIN_CLEARANCE
 
@@ -221,7 +235,6 @@ def skin_offsets(avatar: GaussianSet) -> np.ndarray:
 def _sun_visibility(rts, pts, nrm, sun_dir, offsets=None) -> np.ndarray:
     """(n,) share of the 7 disc rays from ``pts`` that escape every mesh in ``rts``; ray origins
     moved ``offsets[k]`` metres (scalar or (n,); default 1e-4) along ``nrm`` for mesh k."""
-    from usd_gs.evaluation.relight_groundtruth import _first_hits
 
     dd = _disc_dirs(sun_dir)
     vis = np.zeros(len(pts))
@@ -237,8 +250,6 @@ def _sun_visibility(rts, pts, nrm, sun_dir, offsets=None) -> np.ndarray:
 
 
 def _sun_irradiance(pts_n: np.ndarray, sun_dir, sun_e) -> np.ndarray:
-    from usd_gs.relight.direct import cap_irradiance
-
     half = math.radians(SUN_ANGLE) / 2
     cos = pts_n @ (sun_dir / np.linalg.norm(sun_dir))
     return (cap_irradiance(cos, math.sin(half)) / (math.pi * math.sin(half) ** 2))[:, None] * np.asarray(sun_e)[None]
@@ -250,8 +261,6 @@ def make_outdoor_scene(sky: str = "clear", n_surface: int = 20000, env_size=(32,
     """Generate and bake the outdoor scene (module docstring). ``sun_e``: sun irradiance at normal
     incidence (linear, white times (1, 0.97, 0.92)); ``sky_e``: the sky's irradiance on an open
     horizontal surface. For 'kiara' the sun direction and strength come from the HDR."""
-    from usd_gs.demo.mesh_avatar import gaussians_on_mesh, sample_surface
-    from usd_gs.evaluation.relight_groundtruth import _direct_irradiance, _intersector
 
     mesh, part, vnormals = _scene_mesh()
     rt = _intersector(mesh)
@@ -285,9 +294,6 @@ def make_outdoor_avatar(n: int = 4000, height: float = 1.8, position=(0.0, 0.02,
     (trimesh) in the same frame)``: CesiumMan as ``relight_groundtruth.make_avatar``."""
     import trimesh
 
-    from usd_gs.demo.mesh_avatar import posed_avatar_frames, posed_meshes
-    from usd_gs.demo.stage import canonical_matrix, locate_data_dir
-    from usd_gs.io.gltf import load_skinned_mesh
 
     mesh = load_skinned_mesh(locate_data_dir() / "humans" / "CesiumMan.glb")
     g = posed_avatar_frames(mesh, [0.0], n_gaussians=n, seed=seed, label="avatar")[0]
@@ -306,7 +312,6 @@ def outdoor_avatar_truth(scene: OutdoorScene, avatar: GaussianSet, albedo: np.nd
     """Linear ground-truth colours (N, 3) ``albedo E / pi`` of the avatar (module docstring)."""
     from scipy.spatial import cKDTree
 
-    from usd_gs.evaluation.relight_groundtruth import _env_dirs, _intersector, quadrature_irradiance
 
     rt = _intersector(scene.mesh)
     rt_self = _intersector(avatar_mesh)
@@ -332,8 +337,6 @@ def sun_visibility_like_process(scene: OutdoorScene, avatar: GaussianSet, light,
     (``ShotProcessor._centre_cfg``)."""
     from dataclasses import replace
 
-    from usd_gs.pipeline.options import ProcessOptions
-    from usd_gs.shadows.shot import Receivers, caster_transmittance
 
     o = options or ProcessOptions()
     cfg = replace(o.dgsm, sampling="center")
@@ -342,9 +345,6 @@ def sun_visibility_like_process(scene: OutdoorScene, avatar: GaussianSet, light,
     idx, val = caster_transmittance(scene.surfaces, recv, light, cfg, roi="cone", bias=o.contact_bias)
     v[idx] *= val
     if o.self_shadow and (light.kind == "directional" or o.self_shadow_lights == "all"):
-        from numba_kernels.normals import gaussian_normals
-        from usd_gs.relight.direct import self_shadow_samples
-        from usd_gs.shadows.shot import receiver_points, shared_transmittance
 
         sel, nearest = self_shadow_samples(avatar.positions, o.self_shadow_samples)
         idx, pts, w = receiver_points(avatar, recv, light, cfg, roi="all", bias=o.self_shadow_bias, candidates=sel)
@@ -366,8 +366,6 @@ def outdoor_ground_truth(sky: str = "clear", n_avatar: int = 4000, n_surface: in
     ``albedo E / pi``, peak 1), ``psnr_display`` (dB, sRGB-encoded), ``psnr_orig_display`` (the
     unrelit avatar), ``psnr_true_normals_display`` (mesh normals in the transfer), the colours
     (``relit``, ``truth`` linear (N, 3)), ``sun_visibility`` (N,), ``timings``."""
-    from usd_gs.evaluation.relight_groundtruth import psnr, relight_like_process
-    from usd_gs.pipeline.options import ProcessOptions
 
     t = {}
     t0 = time.perf_counter()

@@ -40,9 +40,21 @@ from pathlib import Path
 
 import numpy as np
 
+from numba_kernels.normals import gaussian_normals
 from usd_gs import sh3dgs
+from usd_gs.demo.mesh_avatar import gaussians_on_mesh, posed_avatar_frames, sample_surface
+from usd_gs.demo.stage import canonical_matrix, locate_data_dir
 from usd_gs.errors import UserError
-from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
+from usd_gs.evaluation.colorimetry import luminance
+from usd_gs.evaluation.lighting_metrics import lighting_consistency
+from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid, quaternion_to_matrix
+from usd_gs.io import envmap
+from usd_gs.io.gltf import load_skinned_mesh
+from usd_gs.pipeline.shot import ProcessOptions
+from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.relight.probe import PROBE_DILATION, hdr_dome_gaussians
+from usd_gs.shadows.shading import scale_sh
 
 DEFAULT_HDR = "kiara_1_dawn_1k.hdr"
 
@@ -159,9 +171,6 @@ def _occluded(rt, points, target):
 def env_image(hdr=None, size=(16, 32), mean_radiance: float = 0.6) -> np.ndarray:
     """Lat-long environment (h, w, 3) float64 from an HDR of ``/work/shared/data/hdri``-like data,
     box-filtered to ``size`` and scaled so that its mean luminance over the sphere is ``mean_radiance``."""
-    from usd_gs.demo.stage import locate_data_dir
-    from usd_gs.evaluation.colorimetry import luminance
-    from usd_gs.io import envmap
 
     path = Path(hdr) if hdr is not None else locate_data_dir() / "hdri" / DEFAULT_HDR
     img = np.asarray(envmap.read_envmap(path), np.float64)
@@ -179,7 +188,6 @@ def _env_dirs(env, oversample: int = 1):
     """Quadrature of the sphere for the environment ``env`` (h, w, 3): directions (M, 3), solid
     angles (M,) and radiance (M, 3) of the lat-long grid refined ``oversample`` x per axis
     (each environment texel split into oversample^2 directions with its radiance)."""
-    from usd_gs.io import envmap
 
     k = int(oversample)
     fine = np.repeat(np.repeat(env, k, axis=0), k, axis=1) if k > 1 else env
@@ -216,7 +224,6 @@ def make_scene(n_surface: int = 12000, env_size=(16, 32), hdr=None, lamp_pos=(3.
                props: bool = True, env_scale: float = 1.0, seed: int = 0) -> KnownLightScene:
     """Generate and bake the known-light scene (module docstring); ``props``: add the :data:`SPHERES`;
     ``env_scale``: the environment's radiance times this (1e-4: practically the lamp alone)."""
-    from usd_gs.demo.mesh_avatar import gaussians_on_mesh, sample_surface
 
     mesh, part, vnormals = _scene_mesh(props)
     rt = _intersector(mesh)
@@ -244,8 +251,6 @@ def make_scene(n_surface: int = 12000, env_size=(16, 32), hdr=None, lamp_pos=(3.
 
 
 def _dome(env, radius):
-    from usd_gs.relight.probe import hdr_dome_gaussians
-
     h, w = env.shape[:2]
     # sigma 0.6 x the pixel extent: coverage ~0.99 (at the default 0.3 the gaps between splats
     # weight the lamp texels up in fit_probe(alpha=...) and the lamp comes out ~1.5x too bright)
@@ -256,9 +261,6 @@ def _dome(env, radius):
 def make_avatar(n: int = 4000, height: float = 1.8, position=(0.0, 0.02, 0.0), seed: int = 0) -> GaussianSet:
     """CesiumMan surface Gaussians in its first animation pose, ``height`` m tall, feet on y = 0 at
     ``position``, facing +z; colours = its (linear) texture albedo, SH degree 0."""
-    from usd_gs.demo.mesh_avatar import posed_avatar_frames
-    from usd_gs.demo.stage import canonical_matrix, locate_data_dir
-    from usd_gs.io.gltf import load_skinned_mesh
 
     mesh = load_skinned_mesh(locate_data_dir() / "humans" / "CesiumMan.glb")
     g = posed_avatar_frames(mesh, [0.0], n_gaussians=n, seed=seed, label="avatar")[0]
@@ -334,13 +336,6 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     ``visibility`` / ``appearance``: as ``relight_factors`` takes them; ``others_mask`` (bool,
     ``others.count``): which of ``others`` the probe draws (None: all).
     """
-    from numba_kernels.normals import gaussian_normals
-    from usd_gs.gaussians import alpha_weighted_centroid
-    from usd_gs.pipeline.shot import ProcessOptions
-    from usd_gs.relight.avatar import relight_factors
-    from usd_gs.relight.parallax import ProbeBlend
-    from usd_gs.relight.probe import PROBE_DILATION
-    from usd_gs.shadows.shading import scale_sh
 
     o = options or ProcessOptions()
     centre = alpha_weighted_centroid(avatar)
@@ -383,8 +378,6 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
     """
     from dataclasses import replace
 
-    from usd_gs.gaussians import alpha_weighted_centroid
-    from usd_gs.pipeline.shot import ProcessOptions
 
     t = {}
     t0 = time.perf_counter()
@@ -419,7 +412,6 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
            "n_avatar": avatar.count, "n_scene": scene.surfaces.count, "probe_size": opts.probe_size,
            "centre": centre, "timings": t}
     if metrics:
-        from usd_gs.evaluation.lighting_metrics import lighting_consistency
 
         t0 = time.perf_counter()
         relit = avatar.with_label("avatar")

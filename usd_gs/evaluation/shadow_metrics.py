@@ -42,6 +42,8 @@ from __future__ import annotations
 import numpy as np
 
 from usd_gs.errors import UserError
+from usd_gs.render.rasterize import render
+from usd_gs.shadows.shading import light_shares
 
 TAU = 0.1
 """Shadow threshold of SM-IoU and BF (paper: 0.1)."""
@@ -169,7 +171,6 @@ def mesh_shadow_matte(points: np.ndarray, valid: np.ndarray, vertices: np.ndarra
     """``S_dagger`` (H, W) float64 (module docstring) at the ``valid`` pixels of ``points``
     (H, W, 3); 0 elsewhere. ``lights``: ``ShotLight`` list (weights from
     ``shading.light_shares``)."""
-    from usd_gs.shadows.shading import light_shares
 
     out = np.zeros(points.shape[:2])
     sel = np.asarray(valid, bool)
@@ -202,7 +203,6 @@ def strength_gaussians(receivers, strength: np.ndarray):
 def render_strength_matte(receivers, strength: np.ndarray, camera):
     """Receivers-only render with colour = shadow strength. Returns ``(S (H, W) float64,
     alpha (H, W), depth (H, W))``; ``S`` is ``colour / alpha`` (0 where alpha is 0)."""
-    from usd_gs.render.rasterize import render
 
     res = render(strength_gaussians(receivers, strength), camera)
     a = res.alpha.astype(np.float64)

@@ -35,10 +35,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf, Usd, UsdUtils, Vt
 
 from usd_gs.errors import UserError
 from usd_gs.farm.chunks import PREFIX, entry_files_ok, input_hash, read_sidecar
+from usd_gs.io.atomic import atomic_output
+from usd_gs.usd.gaussian_prim import describe_gaussian_prim, file_format_args, read_gaussian_prim, save_stage_atomic
 from usd_gs.usd.output_author import SH_COEFFS, SH_COEFFS_HALF, TRANSMITTANCE
+from usd_gs.usd.output_layer import OutputLayer, _relative_asset_path
+from usd_gs.usd.stage import check_usd_output_path, open_stage
 
 SH_DEGREE = "radiance:sphericalHarmonicsDegree"
 
@@ -55,7 +60,6 @@ class AssembleSummary:
 
 def _layer_frames(path: Path) -> str:
     """``frames A-B`` of a chunk layer (its start and end time codes), or its name's part."""
-    from pxr import Sdf
 
     try:
         layer = Sdf.Layer.FindOrOpen(str(path))
@@ -111,7 +115,6 @@ def collect_chunks(folder, allow_gaps: bool = False) -> list[dict]:
 
 def _sampled_attributes(layers) -> dict:
     """attribute path -> (type name, set of clip indices with time samples)."""
-    from pxr import Sdf
 
     found: dict = {}
     for k, layer in enumerate(layers):
@@ -127,9 +130,6 @@ def _sampled_attributes(layers) -> dict:
 
 def _unaffected_value(stage, attr_path, missing_in: str):
     """The value the single run holds where nothing affected the attribute (module docstring)."""
-    from pxr import Usd, Vt
-
-    from usd_gs.usd.gaussian_prim import describe_gaussian_prim, read_gaussian_prim
 
     prim = stage.GetPrimAtPath(attr_path.GetPrimPath())
     name = attr_path.name
@@ -153,17 +153,11 @@ def _unaffected_value(stage, attr_path, missing_in: str):
 
 
 def _relative(target: Path, out_dir: Path) -> str:
-    from usd_gs.usd.output_layer import _relative_asset_path
-
     return _relative_asset_path(Path(os.path.abspath(target)), out_dir)
 
 
 def _topology(topo_path: Path, layer_paths: list[str], input_stage) -> None:
     """Write the topology layer (module docstring) atomically."""
-    from pxr import Sdf, UsdUtils
-
-    from usd_gs.io.atomic import atomic_output
-    from usd_gs.usd.gaussian_prim import file_format_args
 
     _, args = file_format_args(topo_path)
     with atomic_output(topo_path) as tmp:
@@ -193,9 +187,6 @@ def _topology(topo_path: Path, layer_paths: list[str], input_stage) -> None:
 
 def _manifest(man_path: Path, layers, names, input_stage) -> int:
     """Write the clip manifest atomically; returns how many attributes got an unaffected default."""
-    from pxr import Sdf
-
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
 
     found = _sampled_attributes(layers)
     man = Sdf.Layer.CreateAnonymous("manifest" + man_path.suffix)
@@ -216,11 +207,6 @@ def assemble(folder, output, entries: list[dict] | None = None, allow_gaps: bool
     """Stitch the finished chunks of ``folder`` (or the given ``entries``, frame order) into
     ``output``; see the module docstring. Checks that the input has not changed since, and
     (:func:`collect_chunks`) that no chunk layer lacks its entry unless ``allow_gaps``."""
-    from pxr import Sdf, Usd, Vt
-
-    from usd_gs.usd.gaussian_prim import save_stage_atomic
-    from usd_gs.usd.output_layer import OutputLayer
-    from usd_gs.usd.stage import check_usd_output_path, open_stage
 
     entries = entries if entries is not None else collect_chunks(folder, allow_gaps=allow_gaps)
     out = Path(os.path.abspath(output))

@@ -26,8 +26,11 @@ import numpy as np
 
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
+from usd_gs.io.atomic import atomic_output
+from usd_gs.io.envmap import latlong_directions, latlong_solid_angles, write_exr
 from usd_gs.relight import sun_estimation as se
-from usd_gs.usd.lux import ShotLight
+from usd_gs.relight.avatar import dome_radiance
+from usd_gs.usd.lux import ShotLight, write_capture_lights, write_estimated_lights
 
 OPEN_MODES = ("auto", "outdoor", "indoor")
 
@@ -175,8 +178,6 @@ def _horizontal_irradiance(lt, up: np.ndarray) -> float:
         return float(se.LUMA @ np.asarray(lt.sun_irradiance(), np.float64)) * max(0.0, float(-np.asarray(
             lt.direction, np.float64) @ up))
     if lt.kind == "dome":
-        from usd_gs.io.envmap import latlong_directions, latlong_solid_angles
-        from usd_gs.relight.avatar import dome_radiance
 
         d = latlong_directions(32, 64)
         cos = np.maximum(d @ up, 0.0)
@@ -257,7 +258,6 @@ def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
     else ``write_capture_lights`` with the decision, rejected candidates and estimates as
     customData, the sky's lat-long EXR written atomically to ``texture_path`` and referenced
     as ``texture_ref``. Returns the number of texture files written."""
-    from usd_gs.usd.lux import write_capture_lights, write_estimated_lights
 
     cap = proc.capture
     points_only = all(lt.kind == "point" for lt in lights)
@@ -269,8 +269,6 @@ def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
     textures, n = {}, 0
     for lt in lights:
         if lt.kind == "dome" and lt.env is not None:
-            from usd_gs.io.atomic import atomic_output
-            from usd_gs.io.envmap import write_exr
 
             with atomic_output(texture_path) as tmp:
                 write_exr(tmp, lt.env)

@@ -19,12 +19,20 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Usd, UsdGeom, UsdLux, UsdSkel
 
-from usd_gs.gaussians import GaussianSet
+from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
+from usd_gs.io.atomic import atomic_output
 from usd_gs.pipeline import jit_warmup
 from usd_gs.pipeline.jit_warmup import _mark, _package_dir
 from usd_gs.pipeline.options import ProcessOptions
+from usd_gs.pipeline.shot import ShotProcessor
+from usd_gs.render.preview import render_stage_frame
 from usd_gs.synthetic import random_gaussians
+from usd_gs.usd import skel as uskel
+from usd_gs.usd.gaussian_prim import new_stage, read_gaussian_prim, save_stage_atomic, write_gaussian_prim
+from usd_gs.usd.schema import apply_role
+from usd_gs.usd.stage import open_stage
 
 #: the groups only ``usdgs warmup`` runs; ``process`` is a whole run on a tiny shot, the catch-all run last
 EXTRA_GROUPS = ("estimate", "skin", "directional", "render", "process")
@@ -55,12 +63,6 @@ def tiny_shot(folder, light: str = "none") -> Path:
     avatar ``/World/Rig/Avatar`` (UsdSkel, classic linear blend) and a dual-quaternion skinned one
     ``/World/Rig/AvatarDQ`` (role object), and the lights ``light`` names: ``none`` (estimated),
     ``sphere`` (a UsdLux SphereLight) or ``distant`` (a UsdLux DistantLight)."""
-    from pxr import Gf, UsdGeom, UsdLux, UsdSkel
-
-    from usd_gs.gaussians import matrix_to_quaternion
-    from usd_gs.usd import skel as uskel
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
 
     stage = new_stage()
     stage.SetStartTimeCode(1)
@@ -109,11 +111,6 @@ def tiny_shot(folder, light: str = "none") -> Path:
 
 def _warm_up_extra(groups, folder: Path) -> None:
     """The :data:`EXTRA_GROUPS` (see :func:`warm_up`), on :func:`tiny_shot` stages in ``folder``."""
-    from pxr import Usd
-
-    from usd_gs.pipeline.shot import ShotProcessor
-    from usd_gs.usd.gaussian_prim import read_gaussian_prim
-    from usd_gs.usd.stage import open_stage
 
     if "estimate" in groups:  # closed (a number of point lights) and open (auto: classified, sun and sky)
         for mode in ("2", "auto"):
@@ -132,7 +129,6 @@ def _warm_up_extra(groups, folder: Path) -> None:
             ShotProcessor(str(src), str(folder / f"{src.stem}.lit.usdc"), ProcessOptions(lights="stage")).run(False)
         _mark("directional")
     if "render" in groups:  # usdgs render: the preview rasteriser, on an input and a processed stage
-        from usd_gs.render.preview import render_stage_frame
 
         src = tiny_shot(folder)
         out = folder / "render.lit.usdc"
@@ -184,7 +180,6 @@ def _record_compilations(report: str, groups) -> None:
     warm_up_groups(groups)
     out = {"groups": list(groups), "compiled": [k for k, _ in compiled], "compile_s": sum(t for _, t in compiled),
            "wall_s": time.perf_counter() - t0}
-    from usd_gs.io.atomic import atomic_output
 
     with atomic_output(report) as tmp:
         Path(tmp).write_text(json.dumps(out))

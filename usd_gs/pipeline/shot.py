@@ -31,16 +31,20 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom
 
+from numba_kernels.cubemap_dirs import cube_face_solid_angles
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
 from usd_gs.pipeline import jit_warmup
+from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, write_lights
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.summary import ProcessSummary
-from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.appearance import read_appearance
+from usd_gs.relight.avatar import linear_faces, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
 from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.relight.probe import render_probe_faces
 from usd_gs.resources import check_memory
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
@@ -198,7 +202,6 @@ class ShotProcessor:
     def _estimate(self, frames: list[float], k: int) -> list[ShotLight]:
         """Lights estimated from the capture (``usd_gs.pipeline.capture_lights``: open or closed,
         sun and sky or plausible point lights); what it found goes to ``capture_lines``."""
-        from usd_gs.pipeline.capture_lights import estimate_for_shot
 
         self.capture = estimate_for_shot(self, frames, k)
         self.capture_lines = list(self.capture.lines)
@@ -492,7 +495,6 @@ class ShotProcessor:
     def _appearance(self, path: str, frame: float, n: int):
         """The prim's albedo or RGCA ZH fields (``usd_gs.relight.appearance``) at ``frame``, or None;
         the attribute check is cached per prim."""
-        from usd_gs.relight.appearance import read_appearance
 
         key = ("appearance", path)
         if self._scene_packs.get(key) is False:
@@ -509,9 +511,6 @@ class ShotProcessor:
         stage's lights are used as authored. The point is the first relit prim's centroid at the
         shot's first frame (``anchor_frame`` in a farm chunk), so chunks match the whole-shot run;
         ``centre`` is the fallback when that prim cannot be read."""
-        from numba_kernels.cubemap_dirs import cube_face_solid_angles
-        from usd_gs.relight.avatar import linear_faces
-        from usd_gs.relight.probe import render_probe_faces
 
         out = []
         for lt in lights:
@@ -552,14 +551,12 @@ class ShotProcessor:
     def _direct_fraction(self) -> float:
         """The share of a lit receiver's light that the shadowing lights bring, when
         ``--direct-fraction`` is not given (``usd_gs.pipeline.capture_lights.direct_fraction``)."""
-        from usd_gs.pipeline.capture_lights import direct_fraction
 
         return direct_fraction(self, self.lights_used)
 
     def _write_lights(self, stage, lights, probe_dir: Path) -> None:
         """The estimated lights under /UsdGs/Lights (``usd_gs.pipeline.capture_lights.write_lights``;
         an estimated sky's texture goes into the probe folder)."""
-        from usd_gs.pipeline.capture_lights import write_lights
 
         self.probe_files += write_lights(self, stage, lights, probe_dir / "sky.exr",
                                          f"./{self.final_probe_dir.name}/sky.exr")

@@ -49,9 +49,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_angles
+from numba_kernels.sh_real import eval_basis_rh_numpy
+from numba_kernels.zh_transfer import zh_diffuse_color
 from usd_gs import sh3dgs
+from usd_gs.io import envmap
 from usd_gs.relight.colorspace import display_factor, from_linear, to_linear
+from usd_gs.relight.direct import direct_factors, direct_irradiance, light_direction
+from usd_gs.relight.parallax import cube_texels, reprojected_probes
 from usd_gs.relight.probe import PROBE_DILATION, SHProbe, fit_probe, render_probe_faces
+from usd_gs.relight.transfer import relight_scale
 
 OBSERVED_ALPHA = 0.9
 """Texel coverage from which a probe direction counts as observed (module docstring). Measured on the
@@ -80,7 +87,6 @@ def dome_radiance(domes, dirs: np.ndarray) -> np.ndarray:
     """(..., 3) summed linear radiance of dome lights (``ShotLight`` kind 'dome') from world
     directions ``dirs`` (..., 3): ``color * intensity * texture(axes^T dir)`` (uniform without a
     texture)."""
-    from usd_gs.io import envmap
 
     d = np.asarray(dirs, np.float64)
     out = np.zeros(d.shape[:-1] + (3,))
@@ -97,7 +103,6 @@ def dome_radiance(domes, dirs: np.ndarray) -> np.ndarray:
 def fill_radiance(faces_lin: np.ndarray, alpha: np.ndarray, domes) -> np.ndarray:
     """(6, S, S, 3) linear radiance for the unobserved share of each texel (module docstring):
     the domes', or the coverage-weighted mean of what was observed."""
-    from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_angles
 
     size = faces_lin.shape[1]
     if domes:
@@ -113,8 +118,6 @@ def fill_radiance(faces_lin: np.ndarray, alpha: np.ndarray, domes) -> np.ndarray
 
 def _fill_sh(fill: np.ndarray, alpha: np.ndarray, degree: int) -> np.ndarray:
     """(K, 3) RH SH projection of ``unobserved_share(alpha) * fill`` over the cube's texels."""
-    from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_angles
-    from numba_kernels.sh_real import eval_basis_rh_numpy
 
     size = fill.shape[1]
     w = (cube_face_solid_angles(size) * unobserved_share(alpha)).reshape(-1)
@@ -146,9 +149,6 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     ``factor``: per Gaussian and channel, the relit displayed colour over the captured one,
     gamma included (multiply it into every SH band). ``probe``: the fitted probe (linear radiance,
     fill included, degree ``probe_degree``), what the output stores."""
-    from usd_gs.relight.direct import direct_factors
-    from usd_gs.relight.parallax import cube_texels, reprojected_probes
-    from usd_gs.relight.transfer import relight_scale
 
     space = getattr(opts, "color_space", "srgb")
     gamma = float(opts.relight_gamma)
@@ -193,9 +193,6 @@ def _ratio(out: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 def _zh_linear(g, appearance: dict, probe: SHProbe, lights, visibility, centre, gamma: float) -> np.ndarray:
     """(N, 3) linear ZH colours: the probe's transfer plus each light as a radiance delta."""
-    from numba_kernels.sh_real import eval_basis_rh_numpy
-    from numba_kernels.zh_transfer import zh_diffuse_color
-    from usd_gs.relight.direct import direct_irradiance, light_direction
 
     args = (g.orientations, appearance["zh_albedo"], appearance["zh_color"], appearance.get("zh_mono"))
     rh = probe.rh()

@@ -56,8 +56,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from numba_kernels.cubemap_dirs import cube_face_directions
+from numba_kernels.grid_neighbours import nearest
+from numba_kernels.sun_shadow import transmittance_directions
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
+from usd_gs.io.envmap import latlong_directions, project_latlong_to_sh
+from usd_gs.relight.light_estimation import estimate_lights
+from usd_gs.render.rasterize import render_cube_faces
+from usd_gs.shadows.dgsm import DGSMConfig, exact_transmittance, prepare_occluders
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 SH_C0 = 0.28209479177387814
@@ -205,8 +212,6 @@ def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 
                     mask=None) -> float:
     """Solid-angle weighted share of the directions with elevation >= ``horizon_deg`` that a
     cube render of ``scene`` from ``centre`` leaves empty (alpha < 0.5)."""
-    from numba_kernels.cubemap_dirs import cube_face_directions
-    from usd_gs.render.rasterize import render_cube_faces
 
     _, alpha, _ = render_cube_faces(scene, np.asarray(centre, np.float64), int(size), mask=mask)
     d = cube_face_directions(int(size))
@@ -223,7 +228,6 @@ def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 
 
 def emitter_candidates(scene: GaussianSet, centre, k: int, meters_per_unit: float = 1.0) -> list[EmitterCandidate]:
     """Paper 3.1's ``k`` best candidates (``usd_gs.relight.light_estimation``) with their cues."""
-    from usd_gs.relight.light_estimation import estimate_lights
 
     out = []
     for e in estimate_lights(scene, centre, k=k, meters_per_unit=meters_per_unit):
@@ -360,8 +364,6 @@ class _Scorer:
     correlation score (module docstring). ``sub``: receiver rows used by the coarse pass."""
 
     def __init__(self, casters: GaussianSet, points: np.ndarray, y: np.ndarray, w: np.ndarray, cfg: CaptureConfig):
-        from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
-
         self.cfg = cfg
         dcfg = DGSMConfig()
         rng = np.random.default_rng(1)
@@ -383,7 +385,6 @@ class _Scorer:
     def _thinned(casters: GaussianSet, n: int, rng, dcfg):
         """Packed occluders of a random subset of ``n`` casters whose optical depth is scaled by the
         inverse share (``alpha' = 1 - (1 - alpha)^(1/share)``): the same mean absorption."""
-        from usd_gs.shadows.dgsm import prepare_occluders
 
         share = n / casters.count
         thin = casters.subset(np.sort(rng.choice(casters.count, n, replace=False)))
@@ -394,7 +395,6 @@ class _Scorer:
         """(M', D) float32 transmittance of the receivers (the coarse subset with ``coarse``)
         for sun directions ``dirs`` (D, 3): the DGSM absorption model of the casters along each
         direction (``numba_kernels.sun_shadow``, buckets of ``cell`` scene units)."""
-        from numba_kernels.sun_shadow import transmittance_directions
 
         occ, dep, cov6 = self.coarse if coarse else self.full
         pts = self.points[self.sub] if coarse else self.points
@@ -431,8 +431,6 @@ class SkyEstimate:
     up_axis: str = "Y"
 
     def latlong(self, h: int = 32, w: int = 64) -> np.ndarray:
-        from usd_gs.io.envmap import latlong_directions
-
         d = latlong_directions(h, w)
         img = np.where((d[..., 1] >= 0.0)[..., None], self.radiance, self.ground)
         return img.astype(np.float32)
@@ -440,7 +438,6 @@ class SkyEstimate:
     def sh_rh(self, degree: int = 2) -> np.ndarray:
         """((degree+1)^2, 3) real-SH (Ramamoorthi-Hanrahan basis) radiance coefficients of
         :meth:`latlong` (texture frame, Y up)."""
-        from usd_gs.io.envmap import project_latlong_to_sh
 
         return project_latlong_to_sh(self.latlong(64, 128), degree, basis="rh")
 
@@ -622,14 +619,12 @@ def _nearest_values(points: np.ndarray, ref: np.ndarray, values: np.ndarray) -> 
     """(M,) ``values`` of the nearest ``ref`` point of each point (``grid_neighbours.nearest``)."""
     if ref.shape[0] == points.shape[0]:
         return values
-    from numba_kernels.grid_neighbours import nearest
 
     return values[nearest(ref, points)]
 
 
 def _dense_transmittance(scorer: _Scorer, dirs: np.ndarray, rows: np.ndarray, cfg: CaptureConfig) -> np.ndarray:
     """(len(rows), D) float64 transmittance of receivers ``rows`` for sun directions ``dirs``."""
-    from numba_kernels.sun_shadow import transmittance_directions
 
     occ, dep, cov6 = scorer.coarse  # the sky visibility is smooth: the coarse casters suffice
     return transmittance_directions(-dirs, occ, dep, cov6, scorer.points[rows], cfg.k_sigma,
@@ -695,7 +690,6 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
     to the points, ``usd_gs.shadows.dgsm.exact_transmittance``; the candidate's own emitter
     Gaussians within ``emitter_radius`` left out): best transmittance < ``min_visibility``.
     Sets ``visibility``; returns ``candidates``."""
-    from usd_gs.shadows.dgsm import exact_transmittance
 
     cfg = (config or CaptureConfig()).in_scene_units(meters_per_unit)
     up = up_vector(up_axis)
