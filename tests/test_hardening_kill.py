@@ -65,8 +65,22 @@ def _commands(inp, out: Path) -> dict:
 
 
 def _digest(path: Path) -> dict:
+    """{file: SHA-256} of a file or a folder's files; for USD crate files the hash of their content as
+    text: the crate writer's byte layout differs between processes (token and path tables in hash
+    order), so a finished re-run writes the same content, not always the same bytes."""
+    from pxr import Sdf
+
     files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in files if p.exists()}
+    out = {}
+    for p in files:
+        if not p.exists():
+            continue
+        data = p.read_bytes()
+        if p.suffix == ".usdc":
+            layer = Sdf.Layer.OpenAsAnonymous(str(p))
+            data = layer.ExportToString().encode() if layer is not None else data
+        out[str(p)] = hashlib.sha256(data).hexdigest()
+    return out
 
 
 def _state(out: Path, names) -> dict:
