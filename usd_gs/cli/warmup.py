@@ -62,8 +62,12 @@ def run_groups(jobs: int, say=None) -> list[dict]:
     from usd_gs.pipeline import jit_warmup
 
     folder = Path(tempfile.mkdtemp(prefix="usdgs_warmup_"))
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0",
-               USDGS_JIT_WARMUP_PACKAGE=jit_warmup._package_dir())
+    package = jit_warmup._package_dir()
+    # the groups must compile this process's copy of the package (a checkout run with `python -m`
+    # from its root, or the installed one): its folder's parent goes first on the children's path
+    path = os.pathsep.join([str(Path(package).parent)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", USDGS_JIT_WARMUP="0", USDGS_JIT_WARMUP_PACKAGE=package,
+               PYTHONPATH=path)
     pending, running, done, reports = list(ORDER), {}, set(), []
     try:
         while pending or running:
