@@ -31,18 +31,15 @@ import numpy as np
 from pxr import Sdf, UsdSkel
 
 from usd_gs.demo.stage import (
-    BIKER_HEIGHT,
-    BIKER_ROTATION,
     DemoOptions,
     DemoResult,
     _new_layer_stage,
-    _write_capture,
     _write_cesium_man,
     data_search_paths,
     define_camera,
-    frame_times,
     prepare_output,
     usd_matrix,
+    write_walking_biker,
 )
 from usd_gs.errors import UserError
 from usd_gs.io.splat import read_splat
@@ -169,13 +166,8 @@ def make_outdoor_demo(output="stages/outdoor.usda", options: OutdoorOptions | No
     say(f"  CesiumMan ({opts.avatar_gaussians} Gaussians x {opts.frames} frames) ...")
     counts["/World/CesiumMan"] = _write_cesium_man(demo, data / OUTDOOR_FILES["cesium_man"], layers["cesium_man"],
                                                    walk=CESIUM_WALK)
-    times = frame_times(opts.frames)
-    where, heading = BIKER_WALK.at(times)
     say("  biker ...")
-    counts["/World/Biker"] = _write_capture(
-        demo, data / OUTDOOR_FILES["biker"], layers["biker"], "/World/Biker", "avatar", BIKER_ROTATION, BIKER_HEIGHT,
-        opts.biker_gaussians, opts.seed + 1,
-        translate={f: p for f, p in enumerate(where, start=1)},
-        rotate_y={f: math.degrees(h) for f, h in enumerate(heading, start=1)})
+    counts["/World/Biker"] = write_walking_biker(replace(demo, biker_gaussians=opts.biker_gaussians),
+                                                 data / OUTDOOR_FILES["biker"], layers["biker"], BIKER_WALK)
     _write_root(opts, root, folder.name)
     return DemoResult(root, layers, counts, opts.frames, _time.perf_counter() - t0)

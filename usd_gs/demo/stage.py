@@ -425,6 +425,16 @@ def _write_capture(opts: DemoOptions, ply: Path, path: Path, prim_path: str, rol
     return g.count
 
 
+def write_walking_biker(opts: DemoOptions, ply: Path, path: Path, walk) -> int:
+    """``/World/Biker`` (role avatar) from the biker capture ``ply``, walking along ``walk`` (a path
+    with ``.at(times)`` -> (positions, headings in radians)) at the demo's frames; its count."""
+    where, heading = walk.at(frame_times(opts.frames))
+    return _write_capture(
+        opts, ply, path, "/World/Biker", "avatar", BIKER_ROTATION, BIKER_HEIGHT, opts.biker_gaussians, opts.seed + 1,
+        translate={f: p for f, p in enumerate(where, start=1)},
+        rotate_y={f: math.degrees(h) for f, h in enumerate(heading, start=1)})
+
+
 def _write_root(opts: DemoOptions, path: Path, data_folder: str, room) -> None:
     stage = _new_layer_stage(opts.frames)
     # SkelRoot: CesiumMan is a skinned Gaussian prim (UsdSkel skins only below a SkelRoot)
@@ -520,13 +530,8 @@ def make_demo(output="stages/demo.usda", options: DemoOptions | None = None, dat
     counts["/World/CesiumMan"] = _write_cesium_man(opts, data / DATA_FILES["cesium_man"], layers["cesium_man"])
 
     times = frame_times(opts.frames)
-    where, heading = BIKER_PATH.at(times)
     say("  biker ...")
-    counts["/World/Biker"] = _write_capture(
-        opts, data / DATA_FILES["biker"], layers["biker"], "/World/Biker", "avatar", BIKER_ROTATION, BIKER_HEIGHT,
-        opts.biker_gaussians, opts.seed + 1,
-        translate={f: p for f, p in enumerate(where, start=1)},
-        rotate_y={f: math.degrees(h) for f, h in enumerate(heading, start=1)})
+    counts["/World/Biker"] = write_walking_biker(opts, data / DATA_FILES["biker"], layers["biker"], BIKER_PATH)
     say("  guitar ...")
     counts["/World/Guitar"] = _write_capture(
         opts, data / DATA_FILES["guitar"], layers["guitar"], "/World/Guitar", "object", GUITAR_ROTATION,

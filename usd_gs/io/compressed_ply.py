@@ -27,12 +27,11 @@ float32, the decode PlayCanvas splat-transform uses.
 from __future__ import annotations
 
 import numpy as np
-import plyfile
 
 from usd_gs.errors import InputFormatError, first_bad_index
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.checks import existing_file
-from usd_gs.io.ply import _LOG_SCALE_MAX, REST_COUNT_TO_DEGREE, scales_from_log
+from usd_gs.io.ply import _LOG_SCALE_MAX, REST_COUNT_TO_DEGREE, open_plydata, scales_from_log
 
 SH_C0 = 0.28209479177387814
 CHUNK = 256
@@ -81,16 +80,7 @@ def read_compressed_ply(path) -> GaussianSet:
     """
     label = str(path)
     p = existing_file(path)
-    try:
-        ply = plyfile.PlyData.read(str(p), mmap="r")
-    except plyfile.PlyHeaderParseError as exc:
-        raise InputFormatError(f"{label}: not a PLY file or bad PLY header ({exc})") from None
-    except plyfile.PlyElementParseError as exc:
-        elt = exc.element.name if exc.element is not None else "?"
-        what = "file is truncated" if "end-of-file" in exc.message else exc.message
-        raise InputFormatError(f"{label}: element '{elt}': {what}") from None
-    except (OSError, ValueError, UnicodeDecodeError, MemoryError) as exc:
-        raise InputFormatError(f"{label}: cannot be read as PLY ({exc})") from None
+    ply = open_plydata(label, p)
 
     elements = {e.name: e for e in ply.elements}
     for name in ("chunk", "vertex"):

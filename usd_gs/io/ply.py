@@ -204,6 +204,23 @@ def _check_claimed_size(label: str, p: Path) -> None:
                                    f"{max(body, 0):,} bytes of data can hold (the file is truncated or corrupt)")
 
 
+def open_plydata(label: str, p) -> plyfile.PlyData:
+    """``plyfile.PlyData`` of the PLY file ``p`` (memory-mapped); ``InputFormatError`` naming
+    ``label`` and, where plyfile says, the element, property and row of a bad or truncated file."""
+    try:
+        return plyfile.PlyData.read(str(p), mmap="r")
+    except plyfile.PlyHeaderParseError as exc:
+        raise InputFormatError(f"{label}: not a PLY file or bad PLY header ({exc})") from None
+    except plyfile.PlyElementParseError as exc:
+        elt = exc.element.name if exc.element is not None else "?"
+        where = f" at row {exc.row}" if exc.row is not None else ""
+        prop = f", property '{exc.prop.name}'" if exc.prop is not None else ""
+        what = "file is truncated" if "end-of-file" in exc.message else exc.message
+        raise InputFormatError(f"{label}: element '{elt}'{prop}: {what}{where}") from None
+    except (OSError, ValueError, UnicodeDecodeError, OverflowError, MemoryError) as exc:  # Overflow: ASCII -1, uchar
+        raise InputFormatError(f"{label}: cannot be read as PLY ({exc})") from None
+
+
 def read_ply(path) -> GaussianSet:
     """Read an INRIA-layout 3DGS PLY file (binary or ASCII) into a :class:`GaussianSet`.
 
@@ -217,18 +234,7 @@ def read_ply(path) -> GaussianSet:
     label = str(path)
     p = existing_file(path)
     _check_claimed_size(label, p)
-    try:
-        ply = plyfile.PlyData.read(str(p), mmap="r")
-    except plyfile.PlyHeaderParseError as exc:
-        raise InputFormatError(f"{label}: not a PLY file or bad PLY header ({exc})") from None
-    except plyfile.PlyElementParseError as exc:
-        elt = exc.element.name if exc.element is not None else "?"
-        where = f" at row {exc.row}" if exc.row is not None else ""
-        prop = f", property '{exc.prop.name}'" if exc.prop is not None else ""
-        what = "file is truncated" if "end-of-file" in exc.message else exc.message
-        raise InputFormatError(f"{label}: element '{elt}'{prop}: {what}{where}") from None
-    except (OSError, ValueError, UnicodeDecodeError, OverflowError) as exc:  # Overflow: ASCII -1 for a uchar
-        raise InputFormatError(f"{label}: cannot be read as PLY ({exc})") from None
+    ply = open_plydata(label, p)
 
     names_elt = [e.name for e in ply.elements]
     if "vertex" not in names_elt:

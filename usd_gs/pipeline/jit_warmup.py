@@ -213,12 +213,18 @@ def warm_up(groups=GROUPS) -> None:
         _mark("shadows")
 
 
-if __name__ == "__main__":
-    unknown = set(sys.argv[1:]) - set(GROUPS)
+def groups_from_argv(module: str, known: tuple) -> tuple:
+    """The warm-up groups a ``python -m module GROUP ...`` process was asked for (all of ``known``
+    when none); ``SystemExit`` for an unknown group, or when this is another copy of the package
+    than the launching process's (``USDGS_JIT_WARMUP_PACKAGE``: its cache entries would not be used)."""
+    unknown = set(sys.argv[1:]) - set(known)
     if unknown:
-        raise SystemExit(f"usd_gs.pipeline.jit_warmup: unknown group(s) {sorted(unknown)}; groups are {GROUPS}")
+        raise SystemExit(f"{module}: unknown group(s) {sorted(unknown)}; groups are {known}")
     wanted = os.environ.get("USDGS_JIT_WARMUP_PACKAGE")
     if wanted and wanted != _package_dir():
-        # another copy of the package than the main process's: its cache entries would not be used
-        raise SystemExit(f"usd_gs.pipeline.jit_warmup: this is {_package_dir()}, the main process runs {wanted}")
-    warm_up(tuple(sys.argv[1:]) or GROUPS)
+        raise SystemExit(f"{module}: this is {_package_dir()}, the main process runs {wanted}")
+    return tuple(sys.argv[1:]) or known
+
+
+if __name__ == "__main__":
+    warm_up(groups_from_argv("usd_gs.pipeline.jit_warmup", GROUPS))

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ from pxr import Gf, Usd, UsdGeom, UsdLux, UsdSkel
 from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
 from usd_gs.io.atomic import atomic_output
 from usd_gs.pipeline import jit_warmup
-from usd_gs.pipeline.jit_warmup import _mark, _package_dir
+from usd_gs.pipeline.jit_warmup import _mark
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.shot import ShotProcessor
 from usd_gs.render.preview import render_stage_frame
@@ -186,14 +185,9 @@ def _record_compilations(report: str, groups) -> None:
 
 
 if __name__ == "__main__":
-    unknown = set(sys.argv[1:]) - set(GROUPS)
-    if unknown:
-        raise SystemExit(f"usd_gs.pipeline.machine_warmup: unknown group(s) {sorted(unknown)}; groups are {GROUPS}")
-    wanted = os.environ.get("USDGS_JIT_WARMUP_PACKAGE")
-    if wanted and wanted != _package_dir():
-        raise SystemExit(f"usd_gs.pipeline.machine_warmup: this is {_package_dir()}, the main process runs {wanted}")
+    wanted_groups = jit_warmup.groups_from_argv("usd_gs.pipeline.machine_warmup", GROUPS)
     report = os.environ.get("USDGS_JIT_WARMUP_REPORT")
     if report:  # which kernels this process compiled (not loaded from the cache), and how long
-        _record_compilations(report, tuple(sys.argv[1:]) or GROUPS)
+        _record_compilations(report, wanted_groups)
     else:
-        warm_up_groups(tuple(sys.argv[1:]) or GROUPS)
+        warm_up_groups(wanted_groups)
