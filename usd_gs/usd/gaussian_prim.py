@@ -36,6 +36,7 @@ from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
 from usd_gs.usd import skel as _skel
 from usd_gs.usd.attr_types import require_types
+from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy
 from usd_gs.usd.frames import as_time
 from usd_gs.usd.schema import RoleInfo, read_role, register_plugins
 
@@ -562,12 +563,12 @@ def write_gaussian_prim(stage: Usd.Stage, path, gaussians: GaussianSet, time=Non
     if precision == "half":
         _check_half(values, {POSITIONS: g.positions, ORIENTATIONS: g.orientations[:, [1, 2, 3, 0]],
                              SCALES: g.scales, OPACITIES: g.opacities, SH_COEFFS: g.sh.reshape(n * k, 3)}, label)
-    vt_values = {name: types[name][1].FromNumpy(np.ascontiguousarray(arr)) for name, arr in values.items()}
-    extent = Vt.Vec3fArray.FromNumpy(g.extent(3.0))
+    vt_values = {name: vt_from_numpy(types[name][1], arr) for name, arr in values.items()}
+    extent = Vt.Vec3fArray.FromNumpy(gaussian_extent(g, 3.0))  # == g.extent(3.0), bit for bit
     raw = []
     if keep_raw:
         if g.log_scales is not None:
-            raw.append((RAW_LOG_SCALES, _T.Float3Array, Vt.Vec3fArray.FromNumpy(g.log_scales), None))
+            raw.append((RAW_LOG_SCALES, _T.Float3Array, vt_from_numpy(Vt.Vec3fArray, g.log_scales), None))
         if g.logit_opacities is not None:
             raw.append((RAW_LOGIT_OPACITIES, _T.FloatArray, Vt.FloatArray.FromNumpy(g.logit_opacities), None))
         for field, arr in g.extras.items():

@@ -1,0 +1,64 @@
+"""usd_gs.usd.bulk: the fast write-path helpers return exactly what the plain calls return."""
+
+import numpy as np
+import pytest
+from pxr import Vt
+
+from usd_gs.errors import GaussianDataError
+from usd_gs.gaussians import GaussianSet
+from usd_gs.synthetic import random_gaussians
+from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy
+
+
+def _same_bits(a, b):
+    return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_extent_equals_the_float64_extent_bit_for_bit(seed):
+    rng = np.random.default_rng(seed)
+    g = random_gaussians(20_000 + 997 * seed, 0, seed=seed)
+    # unnormalised quaternions, a spread of scales and far-away centres
+    g.orientations *= rng.uniform(0.05, 20.0, (g.count, 1)).astype(np.float32)
+    g.scales *= np.exp(rng.normal(0.0, 2.0, g.scales.shape)).astype(np.float32)
+    g.positions += rng.normal(0.0, 1e3 * seed, g.positions.shape).astype(np.float32)
+    assert _same_bits(gaussian_extent(g, 3.0), g.extent(3.0))
+    assert _same_bits(gaussian_extent(g, 1.0), g.extent(1.0))
+
+
+def test_extent_falls_back_on_zero_quaternions_and_names_an_overflow():
+    g = random_gaussians(10_000, 0, seed=1)
+    g.orientations[123] = 0.0  # identity by the GaussianSet convention
+    assert _same_bits(gaussian_extent(g), g.extent(3.0))
+    g.scales[4321] = 3e38
+    with pytest.raises(GaussianDataError, match="element 4321"):
+        gaussian_extent(g)
+
+
+def test_extent_of_a_small_set_and_an_empty_one():
+    g = random_gaussians(100, 0, seed=2)
+    assert _same_bits(gaussian_extent(g), g.extent(3.0))
+    empty = GaussianSet(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 1, 3)))
+    assert np.array_equal(gaussian_extent(empty), np.zeros((2, 3), np.float32))
+
+
+@pytest.mark.parametrize("cls,dtype,shape", [
+    (Vt.Vec3fArray, np.float32, (3,)), (Vt.FloatArray, np.float32, ()), (Vt.QuatfArray, np.float32, (4,)),
+    (Vt.Vec3hArray, np.float16, (3,)), (Vt.HalfArray, np.float16, ()), (Vt.QuathArray, np.float16, (4,)),
+    (Vt.IntArray, np.int32, ()), (Vt.DoubleArray, np.float64, ()),
+])
+@pytest.mark.parametrize("n", [5, 100_000])
+def test_vt_from_numpy_equals_from_numpy(cls, dtype, shape, n):
+    arr = np.random.default_rng(n).normal(0.0, 100.0, (n, *shape)).astype(dtype)
+    fast = vt_from_numpy(cls, arr)
+    assert type(fast) is cls and len(fast) == n
+    assert fast == cls.FromNumpy(arr)
+    assert np.array_equal(np.asarray(fast), arr)
+    arr[0] = 7  # the Vt array owns its copy
+    assert np.asarray(fast).reshape(n, -1)[0, 0] != 7 or n == 0
+
+
+def test_vt_from_numpy_of_a_strided_array():
+    base = np.arange(400_000, dtype=np.float32).reshape(-1, 4)
+    arr = base[:, :3]
+    assert vt_from_numpy(Vt.Vec3fArray, arr) == Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(arr))
