@@ -70,7 +70,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
-from .grid_neighbours import build_grid, grid_values, radius_sum
+from .grid_neighbours import build_grid, grid_values, radius_neighbours, radius_sum
 from .jit_options import threaded
 from .sh_real import SH_C0, SH_C1, SH_C2, SH_C3
 from .thread_chunks import run_chunks
@@ -466,3 +466,48 @@ def _peak_nms(positions, base, roi, tail, k, cfg, lazy=True, first_batch=512):
         more = by_ub[~known[by_ub]][:batch]  # the next unknowns by decreasing ub
         batch *= 2
         evaluate(np.unique(np.concatenate([missing, more])))
+
+
+# ----------------------------------------------------------------------------- planar emitters
+@njit(cache=True, fastmath=False)  # serial: union-find (see jit_options.SERIAL_NOTE)
+def link_components(offsets, indices):
+    """Connected components of a graph given as CSR: the neighbours of node i are
+    ``indices[offsets[i]:offsets[i + 1]]`` (offsets (M+1,) int64, indices int64 in [0, M)).
+
+    Returns labels (M,) int64: each node's label is the smallest node index of its component
+    (deterministic: union by the smaller root, path halving)."""
+    m = offsets.shape[0] - 1
+    parent = np.arange(m)
+    for i in range(m):
+        for t in range(offsets[i], offsets[i + 1]):
+            a = i
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            b = indices[t]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a < b:
+                parent[b] = a
+            elif b < a:
+                parent[a] = b
+    labels = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        a = i
+        while parent[a] != a:
+            a = parent[a]
+        labels[i] = a
+    return labels
+
+
+def linked_clusters(points: np.ndarray, link_distance: float) -> np.ndarray:
+    """(M,) int64 single-linkage cluster labels of ``points`` (M, 3): two points are linked when
+    ``|p - q| <= link_distance`` (same units); a label is the smallest index of its cluster."""
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if pts.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    r = max(float(link_distance), 1e-12)
+    grid = build_grid(pts, r)
+    offsets, indices = radius_neighbours(grid, pts, r)
+    return link_components(offsets, indices.astype(np.int64))

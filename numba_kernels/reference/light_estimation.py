@@ -97,3 +97,16 @@ def estimate_lights_arrays(positions, opacities, sh, centroid, viewpoints, k, cf
     out.update(index=winners[order], position=np.array(pos)[order], color=np.array(col)[order],
                intensity=inten[order], score=final[chosen][order])
     return out
+
+
+def linked_clusters(points, link_distance):
+    """Single-linkage labels (smallest index of each cluster) by a dense distance matrix and
+    repeated minimum propagation over the adjacency (O(M^2) memory: small inputs only)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    adj = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)) <= link_distance
+    labels = np.arange(p.shape[0])
+    while True:
+        new = np.where(adj, labels[None, :], p.shape[0]).min(1)
+        if np.array_equal(new, labels):
+            return labels
+        labels = new

@@ -10,7 +10,9 @@ it, ``N`` means closed with N lights) and returns its lights as ``ShotLight`` va
   low-confidence sun is not used: it is reported (and kept in the sky's customData evidence).
 - closed: paper 3.1's point lights (as before), each candidate first tested by
   ``plausible_emitters`` (visible from the avatars' region through the scene, not below the
-  floor); rejected candidates are reported with their reason and the next one takes their place.
+  floor); rejected candidates are reported with their reason and the next one takes their place;
+  plus the capture's plausible bright planar emitters (windows, panels) as RectLights
+  (``closed_capture_lights``), which replace the point candidates found on them.
 
 ``CaptureLights.lines`` is what ``usdgs process`` and ``usdgs lights`` print; ``direct_share``
 maps a light name to the darkening a full shadow of it causes on the display colours of lit
@@ -30,9 +32,12 @@ from usd_gs.io.atomic import atomic_output
 from usd_gs.io.envmap import latlong_directions, latlong_solid_angles, write_exr
 from usd_gs.relight import sun_estimation as se
 from usd_gs.relight.avatar import dome_radiance
+from usd_gs.relight.light_estimation import EstimatedRectLight, RectLightConfig, estimate_rect_lights
 from usd_gs.usd.lux import ShotLight, write_capture_lights, write_estimated_lights
 
 OPEN_MODES = ("auto", "outdoor", "indoor")
+MAX_RECT_LIGHTS = 4  # planar emitters kept per shot (in addition to the k point lights)
+RECT_SLAB = 0.1  # metres: a point candidate this close to a kept planar emitter's plane (and on it) is part of it
 
 
 @dataclass
@@ -46,6 +51,7 @@ class CaptureLights:
     rejected: list = field(default_factory=list)
     lines: list = field(default_factory=list)
     direct_share: dict = field(default_factory=dict)
+    rects: dict = field(default_factory=dict)  # RectLight name -> its EstimatedRectLight (evidence)
 
 
 def _dome_axes(up_axis: str) -> np.ndarray:
@@ -141,7 +147,6 @@ def _open_lights(proc, scene, centroid, hint, decision, up_axis) -> CaptureLight
 
 
 def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis) -> CaptureLights:
-    out = CaptureLights([], decision, lines=[decision.line()] if decision else [])
     cfg = se.CaptureConfig()
     up = se.up_vector(up_axis)
     floor = None
@@ -149,14 +154,61 @@ def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis) -> 
         floor = se.ground_height(scene, up, centroid, cfg.receiver_radius / proc.mpu, hint,
                                  cfg.ground_search / proc.mpu, cfg.flat_cos, cfg.ground_band / 3 / proc.mpu)
         floor = hint if floor is None else floor
-    pts = se.region_points(centroid, up_axis, cfg.visibility_offset / proc.mpu)
+    return closed_capture_lights(scene, centroid, cands, k, up_axis, proc.mpu, floor, decision)
+
+
+def rect_light(r: EstimatedRectLight, name: str) -> ShotLight:
+    """The ``ShotLight`` of an estimated planar emitter: ``kind='point'`` (one DGSM from its
+    centre for the shadows), ``shape='rect'`` with its sides and axes (area samples for the
+    relighting); ``color`` the chromaticity (luminance 1) and ``intensity`` the Rec.709
+    luminance of the colour the character sees, so that ``radiance() = color * intensity`` is
+    that colour (UsdLux RectLight, ``normalize`` off)."""
+    col = np.asarray(r.color, np.float64)
+    lum = float(se.LUMA @ col)
+    return ShotLight(name, "point", np.asarray(r.position, np.float64), color=col / lum if lum > 0 else np.ones(3),
+                     intensity=lum, score=float(r.score), shape="rect", width=float(r.width),
+                     height=float(r.height), axes=np.asarray(r.axes, np.float64))
+
+
+def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_axis: str = "Y",
+                          meters_per_unit: float = 1.0, floor: float | None = None, decision=None,
+                          rect_config: RectLightConfig | None = None) -> CaptureLights:
+    """The lights of a closed capture: its plausible planar emitters as RectLights
+    (``usd_gs.relight.light_estimation.estimate_rect_lights``, at most ``MAX_RECT_LIGHTS``,
+    named ``Rect_<i>`` by decreasing score), plus the first ``k`` plausible point candidates
+    ``cands`` (``sun_estimation.emitter_candidates``, visited in score order, the NMS order of
+    paper 3.1) that do not lie on a kept planar emitter (those are reported as part of it),
+    named ``Light_<i>`` by decreasing intensity. Plausibility as
+    ``sun_estimation.plausible_emitters`` (visible from the avatars' region, not below
+    ``floor``); every rejected candidate is kept in ``rejected`` and in ``lines``."""
+    out = CaptureLights([], decision, lines=[decision.line()] if decision else [])
+    cfg = se.CaptureConfig()
+    mpu = float(meters_per_unit)
+    pts = se.region_points(centroid, up_axis, cfg.visibility_offset / mpu)
+    rect_config = rect_config or RectLightConfig()
+    rects = []
+    for r in estimate_rect_lights(scene, centroid, rect_config, meters_per_unit=mpu):
+        if len(rects) >= MAX_RECT_LIGHTS:
+            break
+        se.plausible_emitters(scene, [r], pts, up_axis, mpu, cfg, floor)
+        if r.rejected:
+            out.rejected.append(r)
+        else:
+            rects.append(r)
+    names = [f"Rect_{i}" for i in range(len(rects))]
+    slab, margin = RECT_SLAB / mpu, rect_config.link_distance / mpu
     # candidates in score order (the NMS order of paper 3.1): the first k plausible ones win
     order = sorted(cands, key=lambda c: -c.score)
     kept = []
     for c in order:
         if len(kept) >= k:
             break
-        se.plausible_emitters(scene, [c], pts, up_axis, proc.mpu, cfg, floor)
+        on = [n for r, n in zip(rects, names, strict=True) if r.contains(c.position, slab, margin)[0]]
+        if on:
+            c.rejected = f"part of the planar emitter {on[0]} (written as a RectLight, not as point lights)"
+            out.rejected.append(c)
+            continue
+        se.plausible_emitters(scene, [c], pts, up_axis, mpu, cfg, floor)
         if c.rejected:
             out.rejected.append(c)
         else:
@@ -164,9 +216,20 @@ def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis) -> 
     kept.sort(key=lambda c: -c.intensity)
     out.lights = [ShotLight(f"Light_{i}", "point", np.asarray(c.position, np.float64), color=np.asarray(c.color),
                             intensity=float(c.intensity), score=float(c.score)) for i, c in enumerate(kept)]
+    for r, name in zip(rects, names, strict=True):
+        lt = rect_light(r, name)
+        out.lights.append(lt)
+        out.rects[name] = r
+        p, n = r.position, r.normal
+        out.lines.append(f"rect light {name}: {r.width * mpu:.2f} x {r.height * mpu:.2f} m at ({p[0]:.2f}, "
+                         f"{p[1]:.2f}, {p[2]:.2f}) emitting along ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f}), radiance "
+                         f"{lt.intensity:.3g}, score {r.score:.3g} ({r.evidence['count']} Gaussians, flatness "
+                         f"{r.evidence['flatness']:.3f}, variation {r.evidence['variation']:.2f}, visibility "
+                         f"{r.visibility:.2f})")
     for c in out.rejected:
         p = c.position
-        out.lines.append(f"rejected light candidate at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), score {c.score:.3g}: "
+        what = "planar emitter" if isinstance(c, EstimatedRectLight) else "light candidate"
+        out.lines.append(f"rejected {what} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), score {c.score:.3g}: "
                          f"{c.rejected}")
     return out
 
@@ -235,6 +298,9 @@ def lights_evidence(cap: CaptureLights) -> dict:
         root["rejected"] = "; ".join(f"({c.position[0]:.2f}, {c.position[1]:.2f}, {c.position[2]:.2f}): "
                                      f"{c.rejected}" for c in cap.rejected)
     ev[""] = root
+    for name, r in cap.rects.items():
+        ev[name] = dict(r.evidence, visibility=round(float(r.visibility), 4),
+                        normal=np.asarray(r.normal, np.float64), radiance=np.asarray(r.color, np.float64))
     if cap.sun is not None:
         sun = {k: v for k, v in cap.sun.evidence().items()}
         sun["directShare"] = float(cap.sun.darkening)  # what direct_fraction reads back (display darkening)
@@ -260,7 +326,7 @@ def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
     as ``texture_ref``. Returns the number of texture files written."""
 
     cap = proc.capture
-    points_only = all(lt.kind == "point" for lt in lights)
+    points_only = all(lt.kind == "point" and lt.form != "rect" for lt in lights)
     if points_only and (cap is None or (not cap.rejected and cap.decision is None)):
         write_estimated_lights(stage, lights)
         return 0

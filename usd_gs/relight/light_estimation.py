@@ -12,7 +12,8 @@ Only the ``"ring"`` viewpoint layout uses the up axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import math
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -176,3 +177,179 @@ def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
                            intensity=float(res["intensity"][i]), score=float(res["score"][i]),
                            index=int(res["index"][i]))
             for i in range(res["index"].shape[0])]
+
+
+# ----------------------------------------------------------------------------- planar emitters
+@dataclass(frozen=True)
+class RectLightConfig:
+    """Parameters of the planar-emitter (RectLight) detection; distances in metres.
+
+    The bright set is paper 3.1's high-score tail (same cues, knee and tail size as
+    :class:`LightEstimationConfig`), kept where the base score is at least ``contrast`` (6)
+    times the median base score of the ROI. It is cut into single-linkage clusters
+    (``link_distance`` 0.1 m); a cluster of at least ``min_count`` (24) Gaussians is a planar
+    emitter when the principal axes of its centres (unweighted PCA, standard deviations
+    ``s1 >= s2 >= s3``) give ``s3 < max_flatness * s2`` (0.1), sides ``sqrt(12) s`` (the side
+    of a uniform rectangle with that standard deviation) of at least ``min_side`` (0.2 m) and an
+    area ``12 s1 s2`` of at least ``min_area`` (0.1 m^2), a brightness variation
+    ``std / mean`` of its unclipped scores at most ``max_variation`` (0.5: a panel or window
+    is evenly bright, a lit patch of wall fades), and its plane facing the avatars:
+    ``|n . (c - centre)| / |c - centre| >= min_facing`` (0.2).
+    """
+
+    contrast: float = 6.0
+    link_distance: float = 0.1
+    min_count: int = 24
+    max_flatness: float = 0.1
+    min_side: float = 0.2
+    min_area: float = 0.1
+    max_variation: float = 0.5
+    min_facing: float = 0.2
+
+    def check(self) -> RectLightConfig:
+        """Raise ``UserError`` naming the first invalid field."""
+        for name in ("contrast", "link_distance", "max_flatness", "min_side", "min_area", "max_variation",
+                     "min_facing"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v >= 0.0):
+                raise UserError(f"rect light config: '{name}' must be a finite number >= 0, got {v}")
+        if self.link_distance <= 0 or self.min_count < 3:
+            raise UserError("rect light config: 'link_distance' must be > 0 and 'min_count' >= 3")
+        return self
+
+
+@dataclass
+class EstimatedRectLight:
+    """One estimated planar emitter, world frame of the scene (scene units).
+
+    position: (3,) float64 centre (mean of the cluster's Gaussian centres, on its plane).
+    normal: (3,) unit emission normal, toward the avatars' side of the plane.
+    axes: (3, 3) columns: the light's local x (the longest side, ``width``), y (``height``) and
+        z = -normal (UsdLux area lights emit along local -Z); a proper rotation.
+    width, height: sides along local x and y (``sqrt(12)`` times the standard deviations).
+    color: (3,) linear RGB the character sees: the mean 3DGS colour ``max(0, 0.5 + SH(dir))``
+        of the cluster along ``dir = normalize(p - avatar_centroid)``, weighted by the base scores.
+    intensity: mean unclipped base score of the cluster (paper 3.1's ``raw``: opacity x
+        luminance cue x reliability cues; the point lights' intensity unit).
+    score: ``intensity * area`` (area in square metres), the ranking of planar emitters.
+    index: (C,) int64 the cluster's Gaussians in the scene set.
+    evidence: the figures the acceptance tests read (count, area_m2, flatness, variation,
+        facing, contrast), for customData.
+    rejected: why it is not a light ('' when kept); visibility: set by the plausibility test.
+    """
+
+    position: np.ndarray
+    normal: np.ndarray
+    axes: np.ndarray
+    width: float
+    height: float
+    color: np.ndarray
+    intensity: float
+    score: float
+    index: np.ndarray
+    evidence: dict = field(default_factory=dict)
+    rejected: str = ""
+    visibility: float = 1.0
+
+    @property
+    def area(self) -> float:
+        return float(self.width * self.height)
+
+    def contains(self, points, slab: float, margin: float) -> np.ndarray:
+        """(M,) bool: points within ``slab`` of the plane and inside the rectangle grown by ``margin``."""
+        d = np.asarray(points, np.float64).reshape(-1, 3) - self.position
+        u, v, w = d @ self.axes[:, 0], d @ self.axes[:, 1], d @ self.axes[:, 2]
+        return (np.abs(w) <= slab) & (np.abs(u) <= self.width / 2 + margin) & (np.abs(v) <= self.height / 2 + margin)
+
+
+def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightConfig | None = None,
+                         light_config: LightEstimationConfig | None = None,
+                         meters_per_unit: float = 1.0) -> list[EstimatedRectLight]:
+    """The planar emitters of ``scene`` (windows, panels) seen from ``avatar_centroid`` (3,):
+    :class:`RectLightConfig`'s clusters of paper 3.1's bright Gaussians, sorted by decreasing
+    score. Plausibility (visibility from the avatars, below the floor) is the caller's
+    (``usd_gs.relight.sun_estimation.plausible_emitters``). Raises like :func:`estimate_lights`."""
+    config = (config or RectLightConfig()).check()
+    light_config = (light_config or LightEstimationConfig()).check()
+    c = np.asarray(avatar_centroid, dtype=np.float64).reshape(-1)
+    if c.shape != (3,) or not np.all(np.isfinite(c)):
+        raise UserError(f"light estimation: avatar centroid must be 3 finite numbers, got {avatar_centroid!r}")
+    from numba_kernels.light_estimation import (
+        STATUS_IN_ROI,
+        STATUS_NONFINITE,
+        estimate_lights_arrays,
+        linked_clusters,
+        select_tail,
+    )
+
+    mpu = float(meters_per_unit)
+    cfg = light_config.in_scene_units(mpu)
+    res = estimate_lights_arrays(scene.positions, scene.opacities, scene.sh, c,
+                                 make_viewpoints(c, light_config, mpu), 0, cfg)
+    bad = np.flatnonzero(res["status"] == STATUS_NONFINITE)
+    if bad.size:
+        raise GaussianDataError(f"{scene.label}: element {int(bad[0])} has non-finite values ({bad.size} "
+                                f"Gaussians); light estimation needs finite values")
+    base, raw = res["base"], res["raw"]
+    roi = np.flatnonzero(res["status"] == STATUS_IN_ROI)
+    if roi.size == 0:
+        return []
+    med = float(np.median(base[roi]))
+    n_tail = min(max(math.ceil(cfg.tail_fraction * roi.size), int(cfg.min_candidates)), int(cfg.max_candidates))
+    tail = select_tail(base, n_tail)
+    bright = tail[base[tail] >= config.contrast * med] if med > 0 else tail
+    if bright.size < config.min_count:
+        return []
+    p = scene.positions[bright].astype(np.float64)
+    labels = linked_clusters(p, config.link_distance / mpu)
+    roots, counts = np.unique(labels, return_counts=True)
+    out = []
+    for root in roots[counts >= config.min_count]:  # a loop over clusters, not Gaussians
+        rows = np.flatnonzero(labels == root)
+        light = _planar_cluster(scene, c, bright[rows], p[rows], base, raw, med, config, mpu)
+        if light is not None:
+            out.append(light)
+    out.sort(key=lambda r: -r.score)
+    return out
+
+
+def _planar_cluster(scene, centroid, idx, p, base, raw, median, config, mpu):
+    """The :class:`EstimatedRectLight` of one bright cluster, or None where it is not a planar
+    emitter (:class:`RectLightConfig`)."""
+    from usd_gs.sh3dgs import eval_color
+
+    centre = p.mean(axis=0)
+    d = p - centre
+    evals, evecs = np.linalg.eigh(d.T @ d / p.shape[0])  # ascending
+    s3, s2, s1 = np.sqrt(np.maximum(evals, 0.0))
+    flatness = s3 / s2 if s2 > 0 else 1.0
+    w, h = math.sqrt(12.0) * s1, math.sqrt(12.0) * s2  # scene units
+    area_m2 = w * h * mpu * mpu
+    r = raw[idx]
+    variation = float(np.std(r) / np.mean(r)) if np.mean(r) > 0 else 1.0
+    n = evecs[:, 0].copy()
+    to_c = centroid - centre
+    dist = float(np.linalg.norm(to_c))
+    if n @ to_c < 0:
+        n = -n
+    facing = float(n @ to_c / dist) if dist > 0 else 1.0
+    if (flatness >= config.max_flatness or h * mpu < config.min_side or area_m2 < config.min_area
+            or variation > config.max_variation or facing < config.min_facing):
+        return None
+    x = evecs[:, 2].copy()
+    z = -n
+    y = np.cross(z, x)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    axes = np.stack([x, y, z], axis=1)
+    dirs = scene.positions[idx].astype(np.float64) - centroid
+    dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-300)
+    col = np.maximum(eval_color(scene.sh[idx], dirs), 0.0)
+    wts = base[idx]
+    color = (wts[:, None] * col).sum(0) / wts.sum()
+    intensity = float(np.mean(r))
+    evidence = {"count": int(idx.size), "area_m2": round(float(area_m2), 4), "flatness": round(float(flatness), 4),
+                "variation": round(variation, 4), "facing": round(facing, 4),
+                "contrast": round(float(np.mean(base[idx]) / median), 3) if median > 0 else 0.0}
+    return EstimatedRectLight(centre, n, axes, float(w), float(h), color, intensity, intensity * area_m2,
+                              np.asarray(idx, np.int64), evidence)

@@ -29,8 +29,9 @@ incidence (point-like lights); :meth:`ShotLight.radiance` the emitted radiance o
 lights.
 
 Estimated lights carry the estimator's ``score``; they are written as ``SphereLight`` prims
-under ``/UsdGs/Lights`` with ``customData`` ``usdgs:score`` and ``usdgs:estimated = true`` so
-an artist can edit them in a DCC and re-run with ``--lights stage``.
+(point lights) and ``RectLight`` prims (planar emitters of a closed capture, ``shape='rect'``)
+under ``/UsdGs/Lights`` with ``customData`` ``usdgs:score``, ``usdgs:estimated = true`` and
+the estimate's evidence, so an artist can edit them in a DCC and re-run with ``--lights stage``.
 """
 
 from __future__ import annotations
@@ -313,32 +314,55 @@ def read_stage_lights(stage, time, include_domes: bool = False) -> tuple[list[Sh
     return lights, warnings
 
 
-def write_estimated_lights(stage, lights: list[ShotLight], radius: float = 0.05, root: str = LIGHTS_ROOT) -> list[str]:
-    """Author ``lights`` as ``SphereLight`` prims ``<root>/Light_<i>``; returns their paths.
+def write_estimated_lights(stage, lights: list[ShotLight], radius: float = 0.05, root: str = LIGHTS_ROOT,
+                           evidence: dict | None = None) -> list[str]:
+    """Author ``lights`` (``kind='point'``) as ``SphereLight`` prims ``<root>/Light_<i>``, and
+    the ones with ``shape='rect'`` (estimated planar emitters) as ``RectLight`` prims
+    ``<root>/<name>``; returns their paths.
 
     Values are static (one set of lights per shot); ``customData`` keeps the estimator's
-    score. Positions go into a ``translate`` op in world space, so ``root`` and its parent
-    must not carry transforms (they are defined here as plain ``Scope`` prims). A handful of
-    prims: plain stage API calls (``Define`` is not allowed inside ``Sdf.ChangeBlock``).
+    score (``usdgs:score``, ``usdgs:estimated = true``) and ``evidence[name]`` as
+    ``usdgs:<key>``. Positions go into a ``translate`` op in world space (a RectLight also gets an
+    ``orient`` op: its local x, y, z = the columns of ``axes``, emitting along local -Z, with
+    ``inputs:width`` / ``inputs:height`` along x / y and ``inputs:normalize = false``, so that
+    ``color * intensity`` is its emitted radiance), so ``root`` and its parent must not carry
+    transforms (they are defined here as plain ``Scope`` prims). A handful of prims: plain stage
+    API calls (``Define`` is not allowed inside ``Sdf.ChangeBlock``).
     """
     from pxr import Gf, UsdGeom, UsdLux
 
+    evidence = evidence or {}
     parts = root.strip("/").split("/")
     for i in range(len(parts)):
         UsdGeom.Scope.Define(stage, "/" + "/".join(parts[: i + 1]))
     paths = []
-    for i, light in enumerate(lights):
-        path = f"{root}/Light_{i}"
-        sl = UsdLux.SphereLight.Define(stage, path)
-        UsdGeom.Xformable(sl.GetPrim()).AddTranslateOp().Set(Gf.Vec3d(*map(float, light.position)))
+    n_sphere = 0
+    for light in lights:
+        if light.form == "rect":
+            path = f"{root}/{light.name}"
+            sl = UsdLux.RectLight.Define(stage, path)
+            xf = UsdGeom.Xformable(sl.GetPrim())
+            xf.AddTranslateOp().Set(Gf.Vec3d(*map(float, light.position)))
+            w, x, y, z = matrix_orient(light.axes)
+            xf.AddOrientOp().Set(Gf.Quatf(float(w), float(x), float(y), float(z)))
+            sl.CreateWidthAttr(float(light.width))
+            sl.CreateHeightAttr(float(light.height))
+            sl.CreateNormalizeAttr(False)
+        else:
+            path = f"{root}/Light_{n_sphere}"
+            n_sphere += 1
+            sl = UsdLux.SphereLight.Define(stage, path)
+            UsdGeom.Xformable(sl.GetPrim()).AddTranslateOp().Set(Gf.Vec3d(*map(float, light.position)))
+            sl.CreateRadiusAttr(float(light.radius or radius))
+            sl.CreateTreatAsPointAttr(False)
         sl.CreateIntensityAttr(float(light.intensity))
         sl.CreateColorAttr(Gf.Vec3f(*map(float, light.color)))
-        sl.CreateRadiusAttr(float(light.radius or radius))
-        sl.CreateTreatAsPointAttr(False)
         prim = sl.GetPrim()
         prim.SetCustomDataByKey("usdgs:estimated", True)
         if light.score is not None:
             prim.SetCustomDataByKey("usdgs:score", float(light.score))
+        for key, v in (evidence.get(light.name) or {}).items():
+            prim.SetCustomDataByKey(f"usdgs:{key}", _custom_value(v))
         paths.append(path)
     return paths
 
@@ -368,7 +392,13 @@ def direction_orient(direction) -> tuple:
     x = np.cross(h, z)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
-    r = np.stack([x, y, z], axis=1)  # columns: world images of the local axes
+    return matrix_orient(np.stack([x, y, z], axis=1))
+
+
+def matrix_orient(axes) -> tuple:
+    """(w, x, y, z) unit quaternion of the rotation ``axes`` (3, 3) (columns: world images of the
+    local x, y, z axes; orthonormal, determinant +1), for a UsdGeom ``orient`` op."""
+    r = np.asarray(axes, np.float64)
     w = math.sqrt(max(1.0 + r[0, 0] + r[1, 1] + r[2, 2], 1e-12)) / 2.0
     if w > 1e-3:
         return (w, (r[2, 1] - r[1, 2]) / (4 * w), (r[0, 2] - r[2, 0]) / (4 * w), (r[1, 0] - r[0, 1]) / (4 * w))
@@ -393,7 +423,8 @@ def write_capture_lights(stage, lights: list[ShotLight], evidence: dict | None =
     - ``kind='dome'``: a ``DomeLight`` ``<root>/<name>`` with ``inputs:texture:file`` =
       ``textures[name]`` (a lat-long EXR, ``inputs:texture:format = latlong``), rotated +90 deg
       about X on a Z-up stage (the texture's pole is its +Y);
-    - point lights: as :func:`write_estimated_lights` (``<root>/Light_<i>`` SphereLights).
+    - point lights: as :func:`write_estimated_lights` (``<root>/Light_<i>`` SphereLights, and
+      ``<root>/<name>`` RectLights for the estimated planar emitters, ``shape='rect'``).
 
     ``evidence``: ``{light name: {key: value}}`` written as ``customData`` ``usdgs:<key>`` (score,
     direct share, the estimate's figures; a ``sh`` entry of a dome is its real-SH radiance,
@@ -405,7 +436,7 @@ def write_capture_lights(stage, lights: list[ShotLight], evidence: dict | None =
     evidence = evidence or {}
     textures = textures or {}
     points = [lt for lt in lights if lt.kind == "point"]
-    paths = write_estimated_lights(stage, points, root=root) if points else []
+    paths = write_estimated_lights(stage, points, root=root, evidence=evidence) if points else []
     parts = root.strip("/").split("/")
     for i in range(len(parts)):
         UsdGeom.Scope.Define(stage, "/" + "/".join(parts[: i + 1]))
