@@ -58,6 +58,11 @@ The steps, with the defaults of ``usd_gs.relight.light_estimation.LightEstimatio
    only shapes the selection); score = ``f_w``. Lights are returned sorted by decreasing
    intensity (ties by NMS order).
 
+Planar emitters (windows, panels; ``usd_gs.relight.light_estimation.estimate_rect_lights``)
+reuse steps 1-6 and cut the bright part of the tail into single-linkage clusters with
+:func:`linked_clusters` (hash-grid neighbours within the link distance, then union-find in
+:func:`link_components`).
+
 Every kernel is deterministic: parallel loops only write per-Gaussian outputs; sums run
 serially in a fixed order.
 """

@@ -117,3 +117,52 @@ def test_demo_room_without_a_panel_keeps_its_two_point_lights():
     got = sorted(tuple(np.round(lt.position, 1)) for lt in cap.lights)
     assert got == sorted(tuple(np.round(lp.position, 1)) for lp in room.lamps)
     assert not cap.rects and not any("planar" in c.rejected for c in cap.rejected)
+
+
+def _tiny_stage(path, scene):
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+    from usd_gs.usd.schema import apply_role
+
+    stage = new_stage(up_axis="Y", meters_per_unit=1.0, default_prim="World")
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(1)
+    apply_role(write_gaussian_prim(stage, "/World/Scene", scene, keep_raw=False), "scene")
+    rng = np.random.default_rng(0)
+    n = 400
+    pos = CENTRE + rng.uniform(-1, 1, (n, 3)) * [0.2, 0.8, 0.15]
+    av = GaussianSet(pos, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), 0.03), np.full(n, 0.8),
+                     np.zeros((n, 1, 3), np.float32))
+    apply_role(write_gaussian_prim(stage, "/World/Avatar", av, keep_raw=False), "avatar")
+    save_stage_atomic(stage, path)
+
+
+def test_usdgs_lights_writes_the_rect_light_and_reads_it_back(one_lamp_room, tmp_path, capsys):
+    from pxr import Usd, UsdLux
+
+    from usd_gs.cli import main
+    from usd_gs.usd.lux import read_stage_lights
+
+    src, out = tmp_path / "room.usdc", tmp_path / "lights.usda"
+    _tiny_stage(src, GaussianSet.concatenate([one_lamp_room.gaussians, _panel(PANEL_CENTRE)]))
+    assert main(["lights", str(src), "-o", str(out), "--lights", "indoor"]) == 0
+    printed = capsys.readouterr().out
+    assert "rect light Rect_0: 1.20 x 0.80 m at (0.50, 1.60, -3.97)" in printed
+    assert "part of the planar emitter Rect_0" in printed
+    stage = Usd.Stage.Open(str(out))
+    prim = stage.GetPrimAtPath("/UsdGs/Lights/Rect_0")
+    assert prim.GetTypeName() == "RectLight"
+    rl = UsdLux.RectLight(prim)
+    assert rl.GetWidthAttr().Get() == pytest.approx(PANEL_W, rel=0.15)
+    assert rl.GetHeightAttr().Get() == pytest.approx(PANEL_H, rel=0.15)
+    assert rl.GetIntensityAttr().Get() == pytest.approx(3.0, rel=0.05)
+    cd = prim.GetCustomData()["usdgs"]
+    assert cd["estimated"] and cd["score"] > 0 and cd["count"] >= 300
+    assert cd["flatness"] < 0.1 and cd["visibility"] > 0.9 and len(cd["normal"]) == 3
+    # --lights stage reads the same light back: centre, emission normal (local -Z), sides
+    lights, _ = read_stage_lights(stage, Usd.TimeCode(1))
+    back = [lt for lt in lights if lt.form == "rect"]
+    assert len(back) == 1 and back[0].kind == "point"
+    assert np.linalg.norm(back[0].position - PANEL_CENTRE) < 0.03
+    assert float(-back[0].axes[:, 2] @ PANEL_NORMAL) > math.cos(math.radians(3.0))
+    assert back[0].width == pytest.approx(rl.GetWidthAttr().Get(), rel=1e-6)
+    np.testing.assert_allclose(back[0].radiance(), np.asarray(cd["radiance"]), rtol=1e-5)

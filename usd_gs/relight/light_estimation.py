@@ -1,4 +1,5 @@
-"""Estimate k dominant point lights of a 3DGS scene around an avatar (paper section 3.1).
+"""Estimate k dominant point lights of a 3DGS scene around an avatar (paper section 3.1), and
+its bright planar emitters (windows, panels) for RectLights (:func:`estimate_rect_lights`).
 
 Thin wrapper around ``numba_kernels.light_estimation`` (imported lazily, so importing this
 module does not load numba); the algorithm, its formulas and defaults are documented there
