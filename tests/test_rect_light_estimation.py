@@ -109,6 +109,16 @@ def test_mirror_image_of_the_panel_below_the_floor_is_rejected(one_lamp_room):
     assert "below the floor" in lights_evidence(cap)[""]["rejected"]
 
 
+def test_panel_behind_a_wall_is_rejected_as_hidden(one_lamp_room):
+    behind = PANEL_CENTRE + np.array([0.0, 0.0, -0.3])  # 27 cm behind the z = -4 wall, facing the room
+    scene = GaussianSet.concatenate([one_lamp_room.gaussians, _panel(behind)])
+    assert len(estimate_rect_lights(scene, CENTRE)) == 1
+    cap = _lights(scene, 1)
+    assert not cap.rects
+    hidden = [c for c in cap.rejected if np.linalg.norm(c.position - behind) < 0.05]
+    assert hidden and "hidden from the avatars' region" in hidden[0].rejected and hidden[0].visibility < 0.2
+
+
 def test_demo_room_without_a_panel_keeps_its_two_point_lights():
     room = make_room(density=60.0, seed=0)
     assert estimate_rect_lights(room.gaussians, CENTRE) == []  # its lamp-lit, saturated ceiling is no window
