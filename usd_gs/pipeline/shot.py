@@ -569,8 +569,44 @@ class ShotProcessor:
         u, t_static_u, t_dyn = shadows.touched, shadows.t_touched, shadows.t_dyn
         affected = []
         f = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
-        owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in self._static_recv_paths]), u, side="right")
-        for k, p in enumerate(self._static_recv_paths):
+        paths = self._static_recv_paths
+        block = getattr(self, "_static_sh_block", None)
+        if block is None:
+            # once per shot: the static receivers' prim-local SH in one array (their rows in srecv),
+            # or False where the prims differ in SH degree (then one prim at a time)
+            ends = np.array([srecv.ranges[p][1] for p in paths], np.int64)
+            offsets = np.concatenate([[0], ends])
+            local = [self._local_sh(p, frame, sets[p]) for p in paths]
+            regular = (len({s.shape[1] for s in local}) == 1
+                       and all(srecv.ranges[p][0] == offsets[i] for i, p in enumerate(paths)))
+            block = (offsets, np.concatenate(local).astype(np.float32, copy=False)) if regular else False
+            self._static_sh_block = block
+        if block is not False:
+            # every static receiver at once: the same values as the prim-by-prim loop below
+            offsets, sh_block = block
+            owner = np.searchsorted(offsets[1:], u, side="right")
+            touched = np.zeros(len(paths), bool)
+            touched[owner] = True
+            shadowed = np.zeros(len(paths), bool)
+            shadowed[owner[t_static_u < 1]] = True  # the prims whose SH is attenuated
+            cand = np.flatnonzero([touched[k] or not author.is_clean(p) for k, p in enumerate(paths)])
+            counts = offsets[cand + 1] - offsets[cand]
+            sub = np.concatenate([[0], np.cumsum(counts)])
+            rows = np.repeat(offsets[cand] - sub[:-1], counts) + np.arange(sub[-1])
+            tp = np.ones(offsets[-1], np.float32)
+            tp[u] = t_static_u
+            tp = tp[rows]
+            sh_in = sh_block[rows]
+            sh_out = sh_in
+            lit = np.repeat(shadowed[cand], counts)
+            if lit.any():
+                sh_out = sh_in.copy()
+                sh_out[lit] = scale_sh(sh_in[lit], attenuation_factor(tp[lit], f))
+            done = author.receivers(frame, [paths[k] for k in cand], sub, tp, sh_out, sh_in)
+            affected += [paths[k] for k, d in zip(cand, done, strict=True) if d]
+        else:
+            owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in paths]), u, side="right")
+        for k, p in enumerate(paths if block is False else ()):
             sel = owner == k
             if not sel.any() and author.is_clean(p):
                 continue
@@ -605,11 +641,11 @@ class ShotProcessor:
         read unrotated (once per shot for static prims). A skinned prim's attribute holds the bind
         pose: its bind-pose SH (once per shot; the results are per-Gaussian colour factors, which
         commute with the skinning's band rotations)."""
+        if path in self._local_sh_cache:  # (holds static and skinned prims only)
+            return self._local_sh_cache[path]
         prim = self.prims[path]
         static = path in self.static
         skinned = has_skel_binding(prim)
-        if (static or skinned) and path in self._local_sh_cache:
-            return self._local_sh_cache[path]
         tc = Usd.TimeCode.EarliestTime() if static else Usd.TimeCode(frame)
         if skinned:
             sh = read_gaussian_prim(prim, tc, world=False, skin=False).sh

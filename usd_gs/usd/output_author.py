@@ -57,12 +57,47 @@ def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.einsum("nkc,k->nc", d, ymax), initial=0.0))
 
 
+def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(P,) float64: :func:`sh_display_change` of each prim's rows ``offsets[i]:offsets[i + 1]`` of
+    ``a``, ``b`` (M, K, 3), in one pass (0 for a prim without rows)."""
+    offsets = np.asarray(offsets, np.int64)
+    k = a.shape[1]
+    bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
+    ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
+    d = np.abs(a.astype(np.float32) - b.astype(np.float32))
+    rows = np.einsum("nkc,k->nc", d, ymax).max(axis=1, initial=0.0)
+    counts = np.diff(offsets)
+    out = np.zeros(len(counts), np.float64)
+    full = counts > 0
+    if full.any():
+        out[full] = np.maximum.reduceat(rows, offsets[:-1][full])
+    return out
+
+
 _HALF_MAX = float(np.finfo(np.float16).max)
+
+
+def _within_half(value: np.ndarray) -> bool:
+    """True when every element of the (non-empty) ``value`` is within +/- the half maximum
+    (False for a NaN, whose check the caller then makes element by element)."""
+    return bool(value.max() <= _HALF_MAX and value.min() >= -_HALF_MAX)
+
+
+def _segment_all(flags: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(P,) bool: ``flags[starts[i]:starts[i] + counts[i]].all()`` for each segment (True when empty);
+    the segments are consecutive and cover ``flags``."""
+    out = np.ones(len(starts), bool)
+    full = counts > 0
+    if full.any():
+        out[full] = np.logical_and.reduceat(flags, starts[full])
+    return out
 
 
 def _to_half(value: np.ndarray, prim_path: str) -> np.ndarray:
     """``value`` as float16; ``UserError`` naming the prim and element where it overflows."""
-    big = np.flatnonzero(np.abs(value).max(axis=-1) > _HALF_MAX) if value.size else ()
+    if not value.size or _within_half(value):  # fast path: two reductions, no temporaries
+        return value.astype(np.float16)
+    big = np.flatnonzero(np.abs(value).max(axis=-1) > _HALF_MAX)
     if len(big):
         from usd_gs.errors import UserError
 
@@ -102,6 +137,7 @@ class OutputAuthor:
         self.first_frame = frames[0]
         self._previous = dict(zip(frames[1:], frames[:-1], strict=True))
         self._tracks: dict[tuple[str, str], _Track] = {}
+        self._sh_attrs: dict[str, tuple] = {}  # prim path -> (K, the SH attribute _sh_attr made)
         self.samples_written = 0
 
     # ------------------------------------------------------------------ attributes
@@ -155,6 +191,9 @@ class OutputAuthor:
         blocked in the output layer)."""
         from pxr import Sdf, UsdGeom
 
+        got = self._sh_attrs.get(prim_path)
+        if got is not None and got[0] == k and got[1].IsValid():
+            return got[1]
         prim = self.stage.GetPrimAtPath(prim_path) or self.stage.OverridePrim(prim_path)
         half = self.precision == "half"
         name = SH_COEFFS_HALF if half else SH_COEFFS
@@ -169,6 +208,7 @@ class OutputAuthor:
                                                                         False, Sdf.VariabilityVarying)
             if not flt.GetResolveInfo().ValueIsBlocked():
                 flt.Block()
+        self._sh_attrs[prim_path] = (k, attr)
         return attr
 
     def receiver(self, prim_path: str, frame: float, transmittance: np.ndarray, sh_out: np.ndarray,
@@ -194,6 +234,90 @@ class OutputAuthor:
         changed |= self._put(prim_path, SH_COEFFS, None, Vt.Vec3hArray if half else Vt.Vec3fArray, value,
                              unaffected, frame, False, make_attr=lambda: self._sh_attr(prim_path, k))
         return changed
+
+    def receivers(self, frame: float, paths, offsets, transmittance: np.ndarray, sh_out: np.ndarray,
+                  sh_in: np.ndarray) -> np.ndarray:
+        """:meth:`receiver` for many prims at once, with the same results and time samples: prim
+        ``paths[i]`` takes rows ``offsets[i]:offsets[i + 1]`` ((P + 1,) ints from 0) of
+        ``transmittance`` (M,) and of ``sh_out``, ``sh_in`` (M, K, 3), one K for all. Returns (P,)
+        bool, whether anything was authored on each prim. The tolerance rule, the half conversion
+        and the comparison with the held values run once over all rows; the writes go into one
+        ``Sdf.ChangeBlock``. A value beyond the half range (or NaN) takes :meth:`receiver`, prim by
+        prim, so that the error names the same prim and element."""
+        from pxr import Sdf, Vt
+
+        paths = list(paths)
+        offsets = np.asarray(offsets, np.int64)
+        if len(offsets) != len(paths) + 1 or (len(paths) and (offsets[0] != 0 or offsets[-1] != sh_out.shape[0])):
+            raise ValueError(f"offsets must be ({len(paths) + 1},) from 0 to {sh_out.shape[0]}, got {offsets}")
+        if not paths:
+            return np.zeros(0, bool)
+        m, k = sh_out.shape[0], sh_out.shape[1]
+        counts = np.diff(offsets)
+        if self.sh_tolerance > 0.0:
+            hold = sh_display_changes(sh_out, sh_in, offsets) < self.sh_tolerance
+            if hold.any():  # within the tolerance of the unaffected SH: written as unaffected
+                sh_out = np.where(np.repeat(hold, counts)[:, None, None], sh_in, sh_out)
+        half = self.precision == "half"
+        shape = (m * k, 3)
+        if half:
+            if m and not (_within_half(sh_out) and _within_half(sh_in)):
+                return np.array([self.receiver(p, frame, transmittance[a:b], sh_out[a:b], sh_in[a:b])
+                                 for p, a, b in zip(paths, offsets[:-1], offsets[1:], strict=True)], bool)
+            value, unaffected = sh_out.reshape(shape).astype(np.float16), sh_in.reshape(shape).astype(np.float16)
+        else:
+            value, unaffected = sh_out.astype(np.float32).reshape(shape), sh_in.astype(np.float32).reshape(shape)
+        changed = np.zeros(len(paths), bool)
+        if "transmittance" in self.aovs:
+            changed |= self._put_many(paths, offsets, TRANSMITTANCE, Vt.FloatArray,
+                                      np.asarray(transmittance).astype(np.float32), np.ones(m, np.float32), frame,
+                                      lambda p: self._attr(p, TRANSMITTANCE, Sdf.ValueTypeNames.FloatArray, True))
+        changed |= self._put_many(paths, offsets * k, SH_COEFFS, Vt.Vec3hArray if half else Vt.Vec3fArray, value,
+                                  unaffected, frame, lambda p: self._sh_attr(p, k))
+        return changed
+
+    def _put_many(self, paths, rows, name, vt_cls, value, unaffected, frame, make_attr) -> np.ndarray:
+        """:meth:`_put` of attribute ``name`` on every prim of ``paths`` (rows ``rows[i]:rows[i + 1]``
+        of ``value``, ``unaffected``), with one comparison over all rows; ``make_attr(path)`` returns
+        the attribute to author. Returns (P,) bool, authored."""
+        from pxr import Sdf
+
+        counts = np.diff(rows)
+        tail = value.shape[1:]
+        width = int(np.prod(tail, dtype=np.int64))
+        tracks = [self._tracks.setdefault((p, name), _Track()) for p in paths]
+        refs, same_shape = [], np.ones(len(paths), bool)
+        for i, track in enumerate(tracks):
+            ref = track.last if track.started else None
+            if ref is not None and ref.shape != (int(counts[i]), *tail):
+                same_shape[i] = False  # np.array_equal: arrays of other shapes differ
+                ref = None
+            refs.append(unaffected[rows[i]:rows[i + 1]] if ref is None else ref)
+        reference = np.concatenate(refs) if len(refs) > 1 else refs[0]
+        starts = rows[:-1] * width
+        equal = _segment_all((value == reference).reshape(-1), starts, counts * width) & same_shape
+        todo = np.flatnonzero(~equal)
+        if not todo.size:
+            return ~equal
+        clean = _segment_all((value == unaffected).reshape(-1), starts, counts * width)
+        attrs = [make_attr(paths[i]) for i in todo]  # created before the change block
+        prev = self._previous.get(float(frame))
+        with Sdf.ChangeBlock():
+            for i, attr in zip(todo, attrs, strict=True):
+                track = tracks[i]
+                a, b = rows[i], rows[i + 1]
+                v = np.ascontiguousarray(value[a:b])
+                held = track.last if track.started else np.ascontiguousarray(unaffected[a:b])
+                if prev is not None and track.last_frame != prev:
+                    attr.Set(vt_cls.FromNumpy(held), prev)  # end of the hold: no interpolation into it
+                    self.samples_written += 1
+                attr.Set(vt_cls.FromNumpy(v), frame)
+                track.clean = bool(clean[i])
+                track.started = True
+                track.last = v.copy()
+                track.last_frame = float(frame)
+                self.samples_written += 1
+        return ~equal
 
     def light_scale(self, prim_path: str, frame: float, scale: np.ndarray) -> None:
         """The relighting factor s_c(n) (N, 3) of a relit prim (an AOV: written only when asked for)."""

@@ -1,0 +1,95 @@
+"""OutputAuthor.receivers (many prims at once) writes what OutputAuthor.receiver writes prim by
+prim: the same time samples, values and return flags, frame after frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd
+
+from usd_gs.errors import UserError
+from usd_gs.usd.output_author import SH_TOLERANCE, OutputAuthor, sh_display_change, sh_display_changes
+
+
+def _layer_content(stage) -> dict:
+    layer = stage.GetRootLayer()
+    out = {}
+
+    def visit(path):
+        spec = layer.GetObjectAtPath(path)
+        for key in spec.ListInfoKeys():
+            if key != "timeSamples":
+                out[(str(path), key)] = repr(spec.GetInfo(key))
+        if path.IsPropertyPath():
+            for t in layer.ListTimeSamplesForPath(path):
+                v = np.asarray(layer.QueryTimeSample(path, t))
+                out[(str(path), t)] = (v.dtype.str, v.shape, v.tobytes())
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return out
+
+
+def _frames(rng, counts, k, n_frames):
+    """Per frame (transmittance, sh_out, sh_in) over all prims: some prims unaffected, some barely
+    changed (below the tolerance), some shadowed, some back to unaffected, values repeating."""
+    m = int(sum(counts))
+    sh_in = rng.normal(scale=0.4, size=(m, k, 3)).astype(np.float32)
+    sh_in[:5] = -0.0  # signed zeros: half values compared bit for bit
+    owner = np.repeat(np.arange(len(counts)), counts)
+    out = []
+    for f in range(n_frames):
+        t = np.ones(m, np.float32)
+        mode = (np.arange(len(counts)) + f) % 4  # 0 unaffected, 1 tiny change, 2 shadowed, 3 same as before
+        tiny = mode[owner] == 1
+        shadow = (mode[owner] == 2) | ((mode[owner] == 3) & (f % 2 == 0))
+        t[shadow] = rng.uniform(0.1, 0.9, shadow.sum()).astype(np.float32)
+        sh_out = sh_in.copy()
+        sh_out[tiny] += np.float32(1e-4)
+        sh_out[shadow] *= t[shadow][:, None, None]
+        out.append((t, sh_out, sh_in))
+    return out
+
+
+@pytest.mark.parametrize("precision,tol,aovs", [("half", SH_TOLERANCE, ()), ("float", 0.0, ("transmittance",)),
+                                                ("half", 0.0, ("transmittance",)), ("float", SH_TOLERANCE, ())])
+@pytest.mark.parametrize("k", [1, 16])
+def test_receivers_author_what_receiver_authors(precision, tol, aovs, k):
+    rng = np.random.default_rng(7 + k)
+    counts = np.array([3, 0, 5, 1, 4, 7, 2, 6])
+    paths = [f"/W/B{i}" for i in range(len(counts))]
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    frames = [1, 2, 3, 5, 6, 7, 9]
+    seq = _frames(rng, counts, k, len(frames))
+    one, many = Usd.Stage.CreateInMemory(), Usd.Stage.CreateInMemory()
+    a1 = OutputAuthor(one, frames, aovs, precision, tol)
+    a2 = OutputAuthor(many, frames, aovs, precision, tol)
+    for f, (t, sh_out, sh_in) in zip(frames, seq, strict=True):
+        # a changing subset of prims each frame, as the main job passes the touched and unclean ones
+        which = [i for i in range(len(paths)) if (i + f) % 3 or not a1.is_clean(paths[i])]
+        flags1 = [a1.receiver(paths[i], f, t[offsets[i]:offsets[i + 1]], sh_out[offsets[i]:offsets[i + 1]],
+                              sh_in[offsets[i]:offsets[i + 1]]) for i in which]
+        rows = np.concatenate([np.arange(offsets[i], offsets[i + 1]) for i in which])
+        sub = np.concatenate([[0], np.cumsum(counts[which])])
+        flags2 = a2.receivers(f, [paths[i] for i in which], sub, t[rows], sh_out[rows], sh_in[rows])
+        assert flags2.tolist() == flags1, f"frame {f}"
+        assert [a2.is_clean(p) for p in paths] == [a1.is_clean(p) for p in paths]
+    assert a2.samples_written == a1.samples_written > 0
+    assert _layer_content(many) == _layer_content(one)
+
+
+def test_receivers_beyond_half_range_name_the_prim_and_element():
+    author = OutputAuthor(Usd.Stage.CreateInMemory(), [1], (), "half", 0.0)
+    sh = np.zeros((5, 1, 3), np.float32)
+    sh_out = sh.copy()
+    sh_out[3, 0, 1] = 7e4  # row 3: the second prim's element 1
+    with pytest.raises(UserError, match=r"/B\.radiance:sphericalHarmonicsCoefficientsh\[1\]"):
+        author.receivers(1, ["/A", "/B"], [0, 2, 5], np.ones(5, np.float32), sh_out, sh)
+
+
+def test_display_changes_per_prim_equal_the_single_prim_bound():
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=(12, 9, 3)).astype(np.float32), rng.normal(size=(12, 9, 3)).astype(np.float32)
+    offsets = np.array([0, 4, 4, 11, 12])
+    got = sh_display_changes(a, b, offsets)
+    want = [sh_display_change(a[i:j], b[i:j]) for i, j in zip(offsets[:-1], offsets[1:], strict=True)]
+    assert got.tolist() == want and want[1] == 0.0 and min(want[0], want[2], want[3]) > 0.1
