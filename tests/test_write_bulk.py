@@ -62,3 +62,45 @@ def test_vt_from_numpy_of_a_strided_array():
     base = np.arange(400_000, dtype=np.float32).reshape(-1, 4)
     arr = base[:, :3]
     assert vt_from_numpy(Vt.Vec3fArray, arr) == Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(arr))
+
+
+@pytest.mark.parametrize("shape,cls", [((70_000, 3), Vt.Vec3fArray), ((70_000,), Vt.FloatArray),
+                                       ((30_000, 16, 3), Vt.Vec3fArray)])
+def test_vt_backed_arrays_are_written_without_a_copy(shape, cls):
+    from usd_gs.usd.bulk import vt_backed_empty
+
+    a = vt_backed_empty(shape)
+    assert a.shape == shape and a.dtype == np.float32 and a.flags.writeable and not a.any()
+    a[...] = np.random.default_rng(0).normal(size=shape)
+    flat = a.reshape(-1, 3) if len(shape) > 1 else a
+    vt = vt_from_numpy(cls, flat)
+    assert np.asarray(vt).__array_interface__["data"][0] == a.__array_interface__["data"][0]
+    assert vt == cls.FromNumpy(np.array(flat))
+    # a part of it, another class or another dtype is copied as usual
+    part = flat[1:]
+    assert np.asarray(vt_from_numpy(cls, part)).__array_interface__["data"][0] != part.__array_interface__["data"][0]
+    assert vt_from_numpy(cls, part) == cls.FromNumpy(np.array(part))
+    other = Vt.FloatArray if cls is Vt.Vec3fArray else Vt.Vec3fArray
+    if other is Vt.FloatArray:
+        assert vt_from_numpy(other, flat.reshape(-1)) == Vt.FloatArray.FromNumpy(np.array(flat.reshape(-1)))
+
+
+def test_vt_backed_empty_of_other_shapes_is_plain_numpy():
+    from usd_gs.usd.bulk import vt_backed_empty
+
+    for shape, dtype in (((10, 4), np.float32), ((10, 3), np.float64), ((0, 3), np.float32)):
+        a = vt_backed_empty(shape, dtype)
+        assert a.shape == shape and a.dtype == dtype and not a.any()
+
+
+def test_sog_decoded_into_vt_storage_is_the_same_set(tmp_path):
+    from usd_gs.io.sog import read_sog, write_sog
+    from usd_gs.usd.bulk import vt_backed_empty
+
+    g = random_gaussians(20_000, 0, seed=3)
+    write_sog(tmp_path / "a.sog", g)
+    plain, backed = read_sog(tmp_path / "a.sog"), read_sog(tmp_path / "a.sog", empty=vt_backed_empty)
+    for name in ("positions", "orientations", "scales", "log_scales", "opacities", "sh"):
+        x, y = getattr(plain, name), getattr(backed, name)
+        assert x.dtype == y.dtype and np.array_equal(x, y), name
+    assert vt_from_numpy(Vt.Vec3fArray, backed.positions) == Vt.Vec3fArray.FromNumpy(plain.positions)

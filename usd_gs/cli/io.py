@@ -12,11 +12,11 @@ from usd_gs.errors import UserError
 READ_HELP = ".ply, .compressed.ply, .splat, .spz, .sog, meta.json, lod-meta.json or a SOG folder"
 
 
-def read_gaussian_file(path: str, lod: int | None = None):
+def read_gaussian_file(path: str, lod: int | None = None, empty=None):
     """Read any capture ``usdgs import`` accepts (``usd_gs.io.formats.read_capture``)."""
     from usd_gs.io.formats import read_capture
 
-    return read_capture(path, lod=lod)
+    return read_capture(path, lod=lod, empty=empty)
 
 
 def default_prim_path(input_path: str) -> str:
@@ -98,7 +98,12 @@ def cmd_import(args) -> int:
     sequence = is_pattern(args.input)
     if args.frames and not sequence:
         raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
-    reader = None if sequence else _Background(read_gaussian_file, args.input, args.lod)
+    if sequence:
+        reader = None
+    else:  # a SOG decodes straight into the Vt arrays that are written (usd_gs.usd.bulk)
+        from usd_gs.usd.bulk import vt_backed_empty
+
+        reader = _Background(read_gaussian_file, args.input, args.lod, vt_backed_empty)
 
     from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
     from usd_gs.usd.schema import apply_role

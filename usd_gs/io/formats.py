@@ -42,12 +42,13 @@ def capture_kind(path) -> str:
     raise UserError(f"{path}: unsupported input type '{p.suffix or 'no extension'}' (expected {READ_HELP})")
 
 
-def read_capture(path, lod: int | None = None) -> GaussianSet:
+def read_capture(path, lod: int | None = None, empty=None) -> GaussianSet:
     """Read any supported capture (module docstring) into a :class:`GaussianSet`.
 
     ``lod`` selects a level of a SOG LOD set (None: the finest complete level); given for
-    another format other than 0 it is an error. Bad input raises :class:`UserError`
-    (:class:`InputFormatError`) naming the file and the field.
+    another format other than 0 it is an error. ``empty`` allocates the decoded float32
+    arrays of a SOG (``usd_gs.io.sog.read_sog``; the other readers do not use it). Bad input
+    raises :class:`UserError` (:class:`InputFormatError`) naming the file and the field.
     """
     kind = capture_kind(path)
     if lod not in (None, 0) and kind != "sog":
@@ -72,7 +73,7 @@ def read_capture(path, lod: int | None = None) -> GaussianSet:
         return read_spz(path)
     from usd_gs.io.sog import read_sog
 
-    return read_sog(path, lod=lod)
+    return read_sog(path, lod=lod, empty=empty)
 
 
 def write_capture(path, gaussians: GaussianSet) -> None:

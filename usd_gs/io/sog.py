@@ -46,16 +46,13 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from usd_gs.errors import InputFormatError, first_bad_index
-from usd_gs.gaussians import GaussianSet
-from usd_gs.io.ply import _LOG_SCALE_MAX, scales_from_log
+from usd_gs.gaussians import GaussianSet, scales_from_log
 
 _SH_REST = {1: 3, 2: 8, 3: 15}
-# |sign(x) ln(|x| + 1)| above this gives a position beyond the float32 range
-_LOG_POS_MAX = float(np.log(np.finfo(np.float32).max))
+# |sign(x) ln(|x| + 1)| above this gives a position beyond the float32 range (and exp(log-scale) too)
+_LOG_POS_MAX = _LOG_SCALE_MAX = float(np.log(np.finfo(np.float32).max))
 # a quaternion byte b -> (b/255*2 - 1) / sqrt(2)
 _QUAT_LUT = (np.arange(256, dtype=np.float64) / 255.0 * 2.0 - 1.0) / np.sqrt(2.0)
-# column of (a, b, c, largest) holding w, x, y, z, for each largest-component tag 0..3
-_QUAT_PERM = np.array([[3, 0, 1, 2], [0, 3, 1, 2], [0, 1, 3, 2], [0, 1, 2, 3]], dtype=np.intp)
 
 
 # ------------------------------------------------------------------------------ containers
@@ -141,8 +138,64 @@ def _parse_meta(label: str, data: bytes) -> dict:
 
 
 # ---------------------------------------------------------------------------------- images
+_LIBWEBP: list = []  # [the libwebp decode functions, or None], filled on first use
+
+
+def _libwebp():
+    """``(WebPGetInfo, WebPDecodeRGBAInto)`` of libwebp through ctypes, or None.
+
+    The library is the one Pillow ships beside itself (``pillow.libs``/``.dylibs``), else the
+    system's. ctypes releases the GIL during the call, so the chunks of a LOD set decode in
+    parallel (Pillow's WebP decoder holds it), straight into a numpy buffer.
+    """
+    if _LIBWEBP:
+        return _LIBWEBP[0]
+    import ctypes
+    import ctypes.util
+
+    import PIL
+
+    here = Path(PIL.__file__).resolve().parent
+    names = sorted(str(f) for d in (here.parent / "pillow.libs", here / ".dylibs")
+                   if d.is_dir() for f in d.iterdir() if f.name.startswith(("libwebp-", "libwebp.")))
+    found = None
+    for name in [*names, "system"]:
+        try:
+            lib = ctypes.CDLL(ctypes.util.find_library("webp") if name == "system" else name)
+            info, decode = lib.WebPGetInfo, lib.WebPDecodeRGBAInto
+        except (OSError, AttributeError, TypeError):
+            continue
+        pint = ctypes.POINTER(ctypes.c_int)
+        info.argtypes, info.restype = [ctypes.c_char_p, ctypes.c_size_t, pint, pint], ctypes.c_int
+        decode.argtypes = [ctypes.c_char_p, ctypes.c_size_t, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+        decode.restype = ctypes.c_void_p
+        found = (info, decode)
+        break
+    _LIBWEBP.append(found)
+    return found
+
+
 def _decode_webp(label: str, name: str, data: bytes, need: int) -> np.ndarray:
-    """(H*W, 4) uint8 RGBA pixels of a WebP image holding at least ``need`` pixels."""
+    """((H*W, 4) uint8 RGBA pixels, W, H) of a WebP image holding at least ``need`` pixels.
+
+    A still WebP goes to libwebp (:func:`_libwebp`); anything libwebp does not decode that way
+    (an animation, corrupt data, another format), and every image when libwebp is not found,
+    through Pillow's ``Image.open``, whose messages name what it found.
+    """
+    lib = _libwebp() if data[:4] == b"RIFF" and data[8:12] == b"WEBP" else None
+    if lib is not None:
+        import ctypes
+
+        info, decode = lib
+        w, h = ctypes.c_int(0), ctypes.c_int(0)
+        if info(data, len(data), ctypes.byref(w), ctypes.byref(h)) and w.value > 0 and h.value > 0:
+            w, h = w.value, h.value
+            if w * h < need:
+                raise InputFormatError(f"{label}: image '{name}' is {w}x{h} = {w * h} pixels, fewer than "
+                                       f"meta.json 'count' {need}")
+            px = np.empty((w * h, 4), np.uint8)
+            if decode(data, len(data), px.ctypes.data, px.nbytes, 4 * w):
+                return px, w, h
     from PIL import Image
 
     try:
@@ -214,15 +267,17 @@ class _Plan:
         return {key: self.src.read(name) for key, (name, _) in self.jobs.items()}
 
 
-def _alloc(n: int, degree: int) -> dict:
+def _alloc(n: int, degree: int, empty=None) -> dict:
+    """The decoded fields' float32 arrays: ``empty(shape)`` (values 0) for positions, scales,
+    log-scales, opacities and SH when given (see :func:`read_sog`), else numpy's."""
     k = (degree + 1) ** 2
-    return {"positions": np.empty((n, 3), np.float32), "orientations": np.empty((n, 4), np.float32),
-            "log_scales": np.empty((n, 3), np.float32), "opacities": np.empty(n, np.float32),
-            "sh": np.zeros((n, k, 3), np.float32)}
+    new = empty or (lambda shape: np.zeros(shape, np.float32))
+    return {"positions": new((n, 3)), "orientations": np.empty((n, 4), np.float32),
+            "log_scales": new((n, 3)), "scales": new((n, 3)), "opacities": new((n,)), "sh": new((n, k, 3))}
 
 
 def _to_set(out: dict, label: str) -> GaussianSet:
-    return GaussianSet(out["positions"], out["orientations"], scales_from_log(out["log_scales"]), out["opacities"],
+    return GaussianSet(out["positions"], out["orientations"], out["scales"], out["opacities"],
                        out["sh"], log_scales=out["log_scales"], label=label)
 
 
@@ -258,20 +313,27 @@ def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
         i = int(np.flatnonzero(qpx[:, 3] < 252)[0])
         raise InputFormatError(f"{label}: image '{qfile}' pixel {i} has alpha {int(qpx[i, 3])}; "
                                "a quaternion tag must be 252..255")
-    tag = (qpx[:, 3] - np.uint8(252)).astype(np.intp)
-    full = np.empty((n, 4), np.float64)  # (a, b, c, largest)
-    full[:, :3] = np.take(_QUAT_LUT, qpx[:, :3])
-    abc2 = np.einsum("ij,ij->i", full[:, :3], full[:, :3])
-    full[:, 3] = np.sqrt(np.maximum(0.0, 1.0 - abc2))
-    inv_norm = 1.0 / np.sqrt(abc2 + full[:, 3] ** 2)  # never zero: the largest is 1 when a = b = c = 0
-    q = np.take(full, (np.arange(n) * 4)[:, None] + _QUAT_PERM[tag])
-    q *= inv_norm[:, None]
-    out["orientations"][sl] = q
+    tag = qpx[:, 3] - np.uint8(252)  # index (w, x, y, z) of the largest component
+    abc = np.take(_QUAT_LUT, qpx[:, :3])  # the other three, in (w, x, y, z) order
+    abc2 = np.einsum("ij,ij->i", abc, abc)
+    big = np.sqrt(np.maximum(0.0, 1.0 - abc2))
+    inv_norm = 1.0 / np.sqrt(abc2 + big * big)  # never zero: the largest is 1 when a = b = c = 0
+    quats = out["orientations"][sl]
+    col = np.empty(n, np.float64)
+    for j in range(4):  # component j: the largest where tag == j, else a, b or c (j or j-1 by tag > j)
+        below, above = abc[:, max(j - 1, 0)], abc[:, min(j, 2)]
+        np.copyto(col, above if j == 0 else below)
+        if 0 < j < 3:
+            np.copyto(col, above, where=tag > j)
+        np.copyto(col, big, where=tag == j)
+        col *= inv_norm
+        quats[:, j] = col
 
-    out["log_scales"][sl] = _lookup(label, "scales", plan.scb, imgs["scales"][0][:n, :3])
+    sidx = imgs["scales"][0][:n, :3]
+    out["log_scales"][sl] = _lookup(label, "scales", plan.scb, sidx)
+    out["scales"][sl] = np.take(scales_from_log(plan.scb), sidx)  # elementwise: the same as of log_scales
     c0 = imgs["sh0"][0][:n]
     sh = out["sh"][sl]
-    sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0[:, :3])
     out["opacities"][sl] = c0[:, 3].astype(np.float32) / np.float32(255.0)
     if bands:
         hfiles, palette, hcb = plan.hfiles, plan.palette, plan.hcb
@@ -290,7 +352,12 @@ def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
             i = int(np.flatnonzero(labels >= palette)[0])
             raise InputFormatError(f"{label}: image '{hfiles[1]}' pixel {i} has label {int(labels[i])}, past "
                                    f"meta.json 'shN.count' {palette}")
-        sh[:, 1:(bands + 1) ** 2, :] = np.take(pal, labels, axis=0)
+        # one gather of whole rows (coefficient 0 and any band past this unit's left 0) into the output
+        k = sh.shape[1]
+        rows = np.zeros((palette, k, 3), np.float32)
+        rows[:, 1:rest + 1] = pal
+        np.take(rows.reshape(palette, k * 3), labels, axis=0, out=sh.reshape(n, k * 3), mode="clip")
+    sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0[:, :3])
 
 
 # ------------------------------------------------------------------------------------ LOD
@@ -328,7 +395,7 @@ def _lod_files(label: str, meta) -> tuple[int, dict[int, dict[int, int]], list[s
     return levels, out, names
 
 
-def read_lod_set(path, lod: int | None = None, threads: int | None = None) -> GaussianSet:
+def read_lod_set(path, lod: int | None = None, threads: int | None = None, empty=None) -> GaussianSet:
     """Read one level of a SOG LOD set (``lod-meta.json``; module docstring).
 
     ``lod`` None picks the finest level (lowest number) whose chunk files are all present.
@@ -374,7 +441,7 @@ def read_lod_set(path, lod: int | None = None, threads: int | None = None) -> Ga
                                    f"{count} Gaussians in it for LOD {lod}")
         plans.append(plan)
     starts = np.concatenate([[0], np.cumsum([pl.count for pl in plans])]).astype(int)
-    out = _alloc(int(starts[-1]), max(pl.bands for pl in plans))
+    out = _alloc(int(starts[-1]), max(pl.bands for pl in plans), empty)
     workers = threads or min(len(plans), os.cpu_count() or 1)
 
     def run(i):
@@ -390,7 +457,7 @@ def read_lod_set(path, lod: int | None = None, threads: int | None = None) -> Ga
 
 
 # ---------------------------------------------------------------------------------- public
-def read_sog(path, lod: int | None = None, threads: int | None = None) -> GaussianSet:
+def read_sog(path, lod: int | None = None, threads: int | None = None, empty=None) -> GaussianSet:
     """Read a SOG v2 capture into a :class:`GaussianSet` (module docstring).
 
     ``path`` is a bundled ``.sog`` zip, a ``meta.json``, a ``lod-meta.json`` or a folder
@@ -399,6 +466,11 @@ def read_sog(path, lod: int | None = None, threads: int | None = None) -> Gaussi
     :class:`InputFormatError` naming the file and the field on bad input (corrupt zip,
     missing member, WebP that does not decode or is smaller than ``count``, missing or
     malformed meta.json fields, codebook indices out of range, bad quaternion tags).
+
+    ``threads``: decoding threads for the chunks of a LOD set (default: one per core, at most
+    one per chunk). ``empty``: a function ``shape -> zero-filled C-order float32 array`` that
+    allocates the decoded positions, scales, log-scales, opacities and SH (``usdgs import``
+    passes one whose arrays are USD's own storage; default numpy's).
     """
     p = Path(path)
     label = str(path)
@@ -412,12 +484,12 @@ def read_sog(path, lod: int | None = None, threads: int | None = None) -> Gaussi
     if not p.exists():
         raise InputFormatError(f"{label}: no such file")
     if p.name == "lod-meta.json":
-        return read_lod_set(p, lod, threads)
+        return read_lod_set(p, lod, threads, empty)
     if lod not in (None, 0):
         raise InputFormatError(f"{label}: --lod {lod} given but this SOG has a single level (no lod-meta.json)")
     if p.suffix.lower() == ".json":
         plan = _Plan(_Source(str(p), folder=p.parent))
-        out = _alloc(plan.count, plan.bands)
+        out = _alloc(plan.count, plan.bands, empty)
         _decode(plan, plan.load(), out)
         return _to_set(out, label)
     with _open_zip(label, p) as zf:
@@ -431,7 +503,7 @@ def read_sog(path, lod: int | None = None, threads: int | None = None) -> Gaussi
         prefix = str(PurePosixPath(min(metas, key=len)).parent)
         plan = _Plan(_Source(label, archive=zf, prefix="" if prefix == "." else prefix))
         raw = plan.load()
-    out = _alloc(plan.count, plan.bands)
+    out = _alloc(plan.count, plan.bands, empty)
     _decode(plan, raw, out)
     return _to_set(out, label)
 

@@ -1,8 +1,9 @@
-"""Bulk helpers of the Gaussian write path: numpy -> ``Vt`` arrays at copy speed, and the
-3-sigma extent of a :class:`~usd_gs.gaussians.GaussianSet` without (N,)-sized float64 passes.
+"""Bulk helpers of the Gaussian write path: numpy -> ``Vt`` arrays at copy speed (or no copy at
+all for arrays a reader decoded into ``Vt`` storage), and the 3-sigma extent of a
+:class:`~usd_gs.gaussians.GaussianSet` without (N,)-sized float64 passes.
 
-Both return exactly what the plain calls return (``Vt.*Array.FromNumpy(arr)``,
-``GaussianSet.extent(n_sigma)``), bit for bit; they only take less time. No numba here.
+They return what the plain calls return (``Vt.*Array.FromNumpy(arr)``,
+``GaussianSet.extent(n_sigma)``), bit for bit; they only take less time and memory. No numba here.
 """
 
 from __future__ import annotations
@@ -15,6 +16,57 @@ import numpy as np
 _SMALL = 1 << 16
 
 
+#: attribute of the ctypes buffer behind a :func:`vt_backed_empty` array that holds its Vt array
+_OWNER = "_usdgs_vt_array"
+
+#: float32 trailing shape -> the Vt array class whose numpy view has that element shape
+_VT_BY_TAIL = {(): "FloatArray", (3,): "Vec3fArray"}
+
+
+def vt_backed_empty(shape: tuple, dtype=np.float32) -> np.ndarray:
+    """A writable numpy array of ``shape`` (float32, C order) whose memory is the storage of a
+    fresh ``Vt.FloatArray`` (``shape`` (N,)) or ``Vt.Vec3fArray`` (``(N, ..., 3)``, N * ... vectors);
+    other shapes and dtypes get a plain ``np.empty``. Values start at 0.
+
+    :func:`vt_from_numpy` of such an array (or of a C-contiguous view of all of it) returns that
+    Vt array itself instead of a copy: a reader decodes straight into what USD writes. The
+    contract: the numpy array is not modified after it was handed to USD (the Vt array would
+    change with it).
+    """
+    shape = tuple(int(d) for d in shape)
+    tail = (3,) if len(shape) >= 2 and shape[-1] == 3 else shape[1:]
+    if np.dtype(dtype) != np.float32 or tail not in _VT_BY_TAIL or not shape:
+        return np.zeros(shape, dtype)
+    from pxr import Vt
+
+    count = int(np.prod(shape[:-1])) if tail else shape[0]
+    out = getattr(Vt, _VT_BY_TAIL[tail])(count)
+    view = np.asarray(out)
+    if view.dtype != np.float32 or view.size != int(np.prod(shape)) or not view.flags.c_contiguous:
+        return np.zeros(shape, dtype)
+    if view.nbytes == 0:
+        return np.zeros(shape, dtype)
+    raw = (ctypes.c_char * view.nbytes).from_address(view.__array_interface__["data"][0])
+    setattr(raw, _OWNER, out)  # keeps the Vt array alive as long as any numpy view of it
+    return np.frombuffer(raw, np.float32).reshape(shape)
+
+
+def _vt_owner(vt_cls, arr: np.ndarray):
+    """The Vt array of class ``vt_cls`` whose whole storage ``arr`` is (:func:`vt_backed_empty`), or None."""
+    base = arr
+    while base is not None and not hasattr(base, _OWNER):
+        base = getattr(base, "base", None)
+    if base is None:
+        return None
+    owner = getattr(base, _OWNER)
+    if type(owner) is not vt_cls or not arr.flags.c_contiguous:
+        return None
+    view = np.asarray(owner)
+    same = (view.dtype == arr.dtype and view.shape == arr.shape
+            and view.__array_interface__["data"][0] == arr.__array_interface__["data"][0])
+    return owner if same else None
+
+
 def vt_from_numpy(vt_cls, arr: np.ndarray):
     """``vt_cls.FromNumpy(arr)`` for a C-contiguous ``arr`` whose dtype is the element scalar of
     ``vt_cls`` (float32 (N, 3) for ``Vt.Vec3fArray``, (N, 4) x, y, z, w for ``Vt.QuatfArray``...).
@@ -22,11 +74,15 @@ def vt_from_numpy(vt_cls, arr: np.ndarray):
     ``FromNumpy`` converts element by element (about 10x slower than a copy); this allocates a
     fresh ``vt_cls(N)``, which no other array shares, and copies the bytes into its storage
     through a writable view of its buffer. Falls back to ``FromNumpy`` when the shapes, dtypes or
-    buffer layout do not line up, so the result is the same in every case.
+    buffer layout do not line up, so the result is the same in every case. For an array of
+    :func:`vt_backed_empty` storage it is the Vt array that storage belongs to (no copy).
     """
     arr = np.ascontiguousarray(arr)
     if arr.nbytes < _SMALL or arr.ndim == 0:
         return vt_cls.FromNumpy(arr)
+    owner = _vt_owner(vt_cls, arr)
+    if owner is not None:
+        return owner
     out = vt_cls(len(arr))
     view = np.asarray(out)
     if view.dtype != arr.dtype or view.shape != arr.shape or not view.flags.c_contiguous:
