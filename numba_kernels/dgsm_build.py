@@ -35,6 +35,17 @@ start: for a point light ``z(0) <= -ZC`` whenever the light lies outside the occ
 6-sigma support along the ray (nearly every pair), so a pair usually costs no erfc at all, and
 a pair with ``z(0) >= ZC`` (support behind the light) is dropped. Error per (pixel,
 occluder) < ``2.2e-17 * scale``.
+
+Depth cuts (beyond the paper): each tile's occluders are taken in the order of their support
+starts (:func:`support_starts`: a lower bound of the ray depth before which an occluder adds less
+than ``erfc(Z_CUT) = 7.4e-7`` of its full step). A pixel takes only occluders that start before
+its cut: the centre of the deepest bin any ROI lookup reads in that pixel (occluders behind every
+receiver of the pixel change no value that is read), lowered to where the ray has gathered an
+optical depth of ``TAU_OPAQUE = 12`` (the bins behind hold ``T < 6.1e-6`` whatever follows); a
+tile stops at the first occluder past all its pixels' cuts. So a voxel that a lookup reads is
+exact to ``max(6.1e-6, the truncations above)``, and a pixel's bins beyond its deepest read bin
+hold partial values (no lookup of the ROI points reads them). ``StaticSceneAtlas`` computes
+whole columns (no deepest-bin cut), since later frames may read any bin.
 """
 
 from __future__ import annotations
@@ -122,18 +133,41 @@ def t_max_for(t_far: float, K: int) -> float:
     return max(t_far, 1e-6) * K / (K - 0.5) * (1.0 + 1e-9)
 
 
-def roi_voxels(light, pts, w: int, K: int, t_max: float):
+@njit(cache=True, fastmath=False)
+def _deepest_bins(pix, kk, deep):  # serial: one pass over the stencils, milliseconds
+    for m in range(pix.shape[0]):
+        k = kk[m, 1]
+        for c in range(pix.shape[1]):
+            p = pix[m, c]
+            if k > deep[p]:
+                deep[p] = k
+
+
+def deepest_bins(pix, kk, pixels, n_pixels: int) -> np.ndarray:
+    """(len(pixels),) int64: the deepest bin that a stencil (``pix`` (M, S) flat pixel ids with
+    ``kk[:, 1]`` (M,) the deeper of its two bins) reads at each of ``pixels``."""
+    deep = np.full(n_pixels, -1, np.int64)
+    _deepest_bins(pix, np.ascontiguousarray(kk), deep)
+    return deep[pixels]
+
+
+def roi_voxels(light, pts, w: int, K: int, t_max: float, deepest: bool = False):
     """Unique flat pixel ids ``P`` and ``(kmin, kmax)`` covering the trilinear stencils of
-    ``pts`` (M, 3). Empty ``pts`` gives an empty ``P`` and ``(0, -1)``."""
+    ``pts`` (M, 3); with ``deepest``, also each pixel's deepest bin read (:func:`deepest_bins`).
+    Empty ``pts`` gives an empty ``P`` and ``(0, -1)``."""
     m = pts.shape[0]
     if m == 0:
-        return np.zeros(0, np.int64), 0, -1
+        z = np.zeros(0, np.int64)
+        return (z, 0, -1, z) if deepest else (z, 0, -1)
     pix = np.empty((m, 4), np.int64)
     kk = np.empty((m, 2), np.int64)
     run_chunks(_stencils, pts.shape[0], light, pts, w, K, t_max, pix, kk, min_chunk=1024)
     mask = np.zeros(w * w, np.bool_)
     mask[pix.ravel()] = True
-    return np.flatnonzero(mask), int(kk[:, 0].min()), int(kk[:, 1].max())
+    pixels = np.flatnonzero(mask)
+    if deepest:
+        return pixels, int(kk[:, 0].min()), int(kk[:, 1].max()), deepest_bins(pix, kk, pixels, w * w)
+    return pixels, int(kk[:, 0].min()), int(kk[:, 1].max())
 
 
 # ----------------------------------------------------------------- tile culling
@@ -333,23 +367,110 @@ def _cum(zk, e0, e0m):
     return v if v > 0.0 else 0.0
 
 
+#: optical depth from which a ray counts as opaque (exp(-12) = 6.1e-6): see :func:`_saturate`
+TAU_OPAQUE = 12.0
+#: erf window of the opaque-ray bookkeeping: a pair adds less than ``erfc(Z_CUT) = 7.4e-7`` of its
+#: full step before ``s* - Z_CUT/sq`` and all but that after ``s* + Z_CUT/sq`` (``1/sq = sqrt(2) sigma_c``,
+#: sigma_c the occluder's sigma along the ray given the ray's offset)
+Z_CUT = 3.5
+#: the window in sigmas: ``Z_CUT sqrt(2)``
+SUPPORT_SIGMAS = Z_CUT * math.sqrt(2.0)
+
+
+def support_starts(centre_depth, occ, k_sigma: float, sigma_along=None) -> np.ndarray:
+    """(N,) float64 lower bound of the ray depth before which occluder i adds less than
+    ``erfc(Z_CUT)`` of its full step on any ray through its ``k_sigma`` ellipsoid: ``centre_depth``
+    (N,) (the distance of its centre from a point light, or its centre's depth along a
+    directional light) minus ``(k_sigma + SUPPORT_SIGMAS) sigma``. ``sigma``: ``sigma_along``
+    (N,) when given (a directional light: the occluder's sigma along it, ``sqrt(l^T Sigma l)``,
+    which bounds both the ellipsoid's depth extent and sigma_c), else its largest sigma
+    (``occ[:, 12:15]`` hold ``1/sigma``; the ellipsoid lies within ``k_sigma sigma_max`` of the
+    centre)."""
+    sig = (1.0 / np.min(np.asarray(occ)[:, 12:15], axis=1)) if sigma_along is None else np.asarray(sigma_along)
+    return np.asarray(centre_depth, np.float64) - (float(k_sigma) + SUPPORT_SIGMAS) * sig
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _sort_tile_lists(t0, t1, tile_start, items, key):
+    """Sort each tile's occluder list ``items[tile_start[t]:tile_start[t+1]]`` by ``key`` (tiles t0..t1-1)."""
+    for t in range(t0, t1):
+        a, b = tile_start[t], tile_start[t + 1]
+        if b - a > 1:
+            seg = items[a:b].copy()
+            order = np.argsort(key[seg], kind="mergesort")
+            for q in range(b - a):
+                items[a + q] = seg[order[q]]
+
+
+def sort_tiles_by(tile_start, items, key) -> None:
+    """In place: each tile's list in ``items`` ordered by ``key`` (N,) float64 (stable)."""
+    run_chunks(_sort_tile_lists, len(tile_start) - 1, tile_start, items, np.ascontiguousarray(key, np.float64),
+               min_chunk=64)
+
+
+def order_tiles(light, occ, tiles, k_sigma: float) -> np.ndarray:
+    """Support starts (:func:`support_starts`, distances from the point ``light`` (3,)) of the
+    occluders ``occ``, with the tile lists and the global list of ``tiles`` (``bin_tiles``' result
+    or the no-culling lists) sorted by them in place, as :func:`accumulate_pixels` needs them."""
+    occ = np.asarray(occ)
+    starts = support_starts(np.linalg.norm(occ[:, :3] - np.asarray(light, np.float64), axis=1), occ, k_sigma)
+    start, items, glob, _ = tiles
+    if len(start) > 1:
+        sort_tiles_by(start, items, starts)
+    if len(glob) > 1:
+        glob[:] = glob[np.argsort(starts[glob], kind="stable")]
+    return starts
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _saturate(r, a, acc, endm, cut):
+    """Opacity bookkeeping of pixel ``a`` after one pair (``r`` = :func:`_accumulate_one`'s result):
+    ``acc[a]`` sums the pairs' full steps and ``endm[a]`` their furthest support end; when the sum
+    first reaches ``TAU_OPAQUE`` every bin beyond ``endm[a]`` holds at least that depth (less
+    ``erfc(Z_CUT)`` of it, :data:`Z_CUT`), so the
+    pixel's cut depth ``cut[a]`` (occluders whose support starts at or beyond it are skipped)
+    drops to ``endm[a]``: a skipped occluder could change that pixel's transmittance only where
+    it is below exp(-TAU_OPAQUE). Returns True when the cut moved."""
+    if r[1] <= 0.0:
+        return False
+    before = acc[a]
+    acc[a] = before + r[1]
+    if r[2] > endm[a]:
+        endm[a] = r[2]
+    if before < TAU_OPAQUE <= acc[a] and endm[a] < cut[a]:
+        cut[a] = endm[a]
+        return True
+    return False
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _max_of(x, n):
+    m = -np.inf
+    for a in range(n):
+        if x[a] > m:
+            m = x[a]
+    return m
+
+
 @njit(cache=True, fastmath=False, inline="always")
 def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin_skip, tau, diff, row, t0, tb):
     """Add occluder i's depth on the ray ``o + s d`` from ``s = t0`` (0 for a point light,
     ``-inf`` for a directional one) to the bin centres ``tb + (k + 1/2) dt``, k = kmin..kmax;
     ``tau``/``diff`` are 2D work arrays and ``row`` the row to add to (passing the 2D array
-    and a row index avoids creating a refcounted view per call). Returns the number of erfc
-    evaluations."""
+    and a row index avoids creating a refcounted view per call). Returns ``(erfc evaluations,
+    the pair's full step (its depth on the whole ray past t0), s* + Z_CUT/sq: the ray depth past
+    which it has added all but erfc(Z_CUT) of that step)`` (0, 0, -inf for a pair that adds
+    nothing)."""
     scale, s_star, sq = ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep)
     if scale < EPS_PAIR:
-        return 0
+        return 0, 0.0, -np.inf
     z0 = sq * (t0 - s_star)
     ne = 0
     if z0 <= -ZC:  # the ray starts before the occluder's support (the common case): erfc(-z0) < 2.2e-17
         e0m = 0.0
         e0 = 2.0
     elif z0 >= ZC:  # the support lies behind the ray's start: depth < scale * 2.2e-17 on the whole ray
-        return 0
+        return 0, 0.0, -np.inf
     elif z0 >= 0.0:
         e0 = math.erfc(z0)
         e0m = 2.0 - e0
@@ -358,12 +479,12 @@ def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin
         e0m = math.erfc(-z0)
         e0 = 2.0 - e0m
         ne = 1
+    half = ZC / sq
     if not bin_skip:
         for k in range(kmin, kmax + 1):
             tk = tb + (k + 0.5) * dt
             tau[row, k - kmin] += scale * _cum(sq * (tk - s_star), e0, e0m)
-        return kmax - kmin + 1 + ne
-    half = ZC / sq
+        return kmax - kmin + 1 + ne, scale * e0, s_star + Z_CUT / sq
     lo = (s_star - half - tb) / dt - 0.5
     hi = (s_star + half - tb) / dt - 0.5
     lo = min(max(lo, kmin - 1.0), kmax + 1.0)
@@ -377,7 +498,7 @@ def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin
     kfull = max(int(math.floor(hi)) + 1, kmin)
     if kfull <= kmax:
         diff[row, kfull - kmin] += scale * e0  # erf(inf) - erf(z0) = erfc(z0)
-    return ne
+    return ne, scale * e0, s_star + Z_CUT / sq
 
 
 # the same function as an ordinary call (for kernels where compile time matters more than speed)
@@ -386,15 +507,20 @@ accumulate_one_call = njit(cache=True, fastmath=False)(_accumulate_one.py_func)
 
 @njit(cache=True, **threaded(), fastmath=False)
 def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
-                      group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, bin_skip,
-                      out, pairs, erfs):
+                      group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, starts, limits,
+                      bin_skip, out, pairs, erfs):
     """Tile-major accumulation: each group is the ROI pixels of one 8x8 tile (rows of
     ``pixels``/``out`` listed in ``group_rows[group_start[g]:group_start[g+1]]``); the tile's
-    occluders are read once and cone-tested against every pixel of the group; ``glob``
-    occluders are evaluated for every pixel without a cone test. ``group_tile[g] < 0`` means
-    no tile list (the no-culling ablation passes every occluder in ``glob``). ``pdirs`` (|P|, 3)
-    are the unit directions of the pixel centres (any direction parameterisation). Groups
-    ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
+    occluders are read once, in the order of their support starts ``starts`` (each tile's list
+    sorted by :func:`sort_tiles_by`), and cone-tested against every pixel of the group; a pixel
+    takes only occluders whose support starts before its cut depth: ``limits[p]`` (the centre of
+    the deepest bin its lookups read, or inf), lowered to where the ray is opaque
+    (:func:`_saturate`); the tile stops at the first occluder past every pixel's cut. Bins of a
+    pixel beyond ``limits[p]`` therefore hold partial depths. ``glob`` occluders are evaluated for every
+    pixel without a cone test. ``group_tile[g] < 0``
+    means no tile list (the no-culling ablation passes every occluder in ``glob``). ``pdirs``
+    (|P|, 3) are the unit directions of the pixel centres (any direction parameterisation).
+    Groups ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
     nk = kmax - kmin + 1
     dt = t_max / K
     ox, oy, oz = light[0], light[1], light[2]
@@ -409,27 +535,44 @@ def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
         diff = np.zeros((npx, nk))
         ne = np.zeros(npx, np.int64)
         npairs = np.zeros(npx, np.int64)
+        acc = np.zeros(npx)
+        endm = np.full(npx, -np.inf)
+        cut = np.empty(npx)
         for a in range(npx):
             p = group_rows[r0 + a]
             dxs[a], dys[a], dzs[a] = pdirs[p, 0], pdirs[p, 1], pdirs[p, 2]
+            cut[a] = limits[p]
+        cutmax = _max_of(cut, npx)
+        for a in range(npx):  # the global occluders first (they can make a pixel opaque early)
+            dx, dy, dz = dxs[a], dys[a], dzs[a]
+            for q in range(glob.shape[0]):  # a call, not a second inlined copy (compile time; few occluders)
+                if starts[glob[q]] >= cut[a]:
+                    continue
+                r = accumulate_one_call(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
+                                        bin_skip, tau, diff, a, 0.0, 0.0)
+                ne[a] += r[0]
+                if _saturate(r, a, acc, endm, cut):
+                    cutmax = _max_of(cut, npx)
+            npairs[a] += glob.shape[0]
         t = group_tile[g]
         if t >= 0:
             for q in range(tile_start[t], tile_start[t + 1]):
                 o = tile_items[q]
+                so = starts[o]
+                if so >= cutmax:
+                    break  # past every pixel's cut (the list is sorted: so are all later ones)
                 if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
                     continue
                 for a in range(npx):
-                    if not hit[a]:
+                    if not hit[a] or so >= cut[a]:
                         continue
                     npairs[a] += 1
-                    ne[a] += _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
-                                             bin_skip, tau, diff, a, 0.0, 0.0)
+                    r = _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
+                                        bin_skip, tau, diff, a, 0.0, 0.0)
+                    ne[a] += r[0]
+                    if _saturate(r, a, acc, endm, cut):
+                        cutmax = _max_of(cut, npx)
         for a in range(npx):
-            dx, dy, dz = dxs[a], dys[a], dzs[a]
-            for q in range(glob.shape[0]):  # a call, not a second inlined copy (compile time; few occluders)
-                ne[a] += accumulate_one_call(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
-                                             bin_skip, tau, diff, a, 0.0, 0.0)
-            npairs[a] += glob.shape[0]
             p = group_rows[r0 + a]
             run = 0.0
             for k in range(nk):
@@ -483,18 +626,24 @@ def pixel_directions(pixels, width: int) -> np.ndarray:
 
 
 def accumulate_pixels(light, occ, dir_dep: int, pixels, width: int, K: int, t_max: float, kmin: int, kmax: int,
-                      tiles, use_tiles: bool, bin_skip: bool, out, pairs, erfs) -> None:
+                      tiles, use_tiles: bool, bin_skip: bool, out, pairs, erfs, starts, deepest=None) -> None:
     """Transmittance of the atlas pixels ``pixels`` (sorted flat ids) over bins ``kmin..kmax``
     into ``out`` (len(pixels), kmax - kmin + 1) float32, with per-pixel counters ``pairs`` and
     ``erfs`` (int64): the accumulation step of :func:`build_point`. ``tiles``:
     ``bin_tiles``' lists (every tile the pixels lie in must have been active), or with
-    ``use_tiles=False`` lists whose ``glob`` holds every occluder."""
+    ``use_tiles=False`` lists whose ``glob`` holds every occluder; ``starts``: what
+    :func:`order_tiles` returned for them (the lists sorted by it); ``deepest``: (len(pixels),)
+    the deepest bin each pixel's lookups read (:func:`roi_voxels`), None for whole columns
+    (bins of a pixel beyond its deepest are then partial, see :func:`_accumulate_point`)."""
     start, items, glob, cone = tiles
     gs, rows, gt = _groups(pixels, width, use_tiles)
     pdirs = pixel_directions(pixels, width)
-    run_chunks(_accumulate_point, len(gs) - 1, light, np.ascontiguousarray(occ, dtype=np.float64), int(dir_dep),
-               pdirs, K, float(t_max), kmin, kmax, gs, rows, gt, start, items, glob, cone, bool(bin_skip), out, pairs,
-               erfs, chunks_per_thread=8)
+    occ = np.ascontiguousarray(occ, dtype=np.float64)
+    limits = (np.full(len(pixels), np.inf) if deepest is None
+              else (np.asarray(deepest, np.float64) + 0.5) * (float(t_max) / K))
+    run_chunks(_accumulate_point, len(gs) - 1, light, occ, int(dir_dep), pdirs, K, float(t_max), kmin, kmax, gs,
+               rows, gt, start, items, glob, cone, starts, limits, bool(bin_skip), out, pairs, erfs,
+               chunks_per_thread=8)
 
 
 def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K: int = 64,
@@ -516,9 +665,9 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
     if t_max is None:
         t_max = t_max_for(far_distance(light, pts), K)
     if use_roi:
-        pixels, kmin, kmax = roi_voxels(light, pts, width, K, t_max)
+        pixels, kmin, kmax, deepest = roi_voxels(light, pts, width, K, t_max, deepest=True)
     else:
-        pixels, kmin, kmax = np.arange(width * width, dtype=np.int64), 0, K - 1
+        pixels, kmin, kmax, deepest = np.arange(width * width, dtype=np.int64), 0, K - 1, None
     index, out, pairs, erfs = atlas_buffers(width * width, pixels, kmin, kmax)
     nk = out.shape[1]
     if len(pixels) and nk and occ.shape[0]:
@@ -535,7 +684,8 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
             items = np.zeros(0, np.int64)
             glob = np.arange(occ.shape[0], dtype=np.int64)
             cone = np.zeros((0, 4))
+        starts = order_tiles(light, occ, (start, items, glob, cone), k_sigma)
         accumulate_pixels(light, occ, dir_dep, pixels, width, K, t_max, kmin, kmax, (start, items, glob, cone),
-                          use_tiles, bin_skip, out, pairs, erfs)
+                          use_tiles, bin_skip, out, pairs, erfs, starts, deepest)
     tiles = (start, items, glob, cone) if (use_tiles and len(pixels) and nk and occ.shape[0]) else None
     return Atlas(width, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), tiles)

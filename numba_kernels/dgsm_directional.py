@@ -17,7 +17,8 @@ only on the ROI voxels (the bilinear stencils of the ROI points x the bins they 
 the ellipse of ``Sigma_perp`` on the grid plane, inside a circle of radius
 ``k_sigma sqrt(lambda_1)``; occluders are bucketed into 8x8 tiles by that circle's box and each
 pixel tests the circle itself. Lookups: bilinear in the grid (indices clamped to the grid),
-linear in depth (clamped to the first/last centre). Bin skipping as in ``dgsm_build``.
+linear in depth (clamped to the first/last centre). Bin skipping, tile-major threaded
+accumulation and the opaque-ray early out as in ``dgsm_build``.
 """
 
 from __future__ import annotations
@@ -28,11 +29,21 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .dgsm_build import TILE, atlas_buffers
-from .dgsm_build import accumulate_one_call as _accumulate_one
+from .dgsm_build import (
+    TAU_OPAQUE,
+    TILE,
+    _accumulate_one,
+    _groups,
+    _max_of,
+    _saturate,
+    atlas_buffers,
+    deepest_bins,
+    support_starts,
+)
 from .dgsm_exact import unit_direction
-from .dgsm_model import check_points
-from .jit_options import prange_only
+from .dgsm_model import check_points, segment_depth
+from .jit_options import prange_only, threaded
+from .thread_chunks import run_chunks
 
 
 class DirAtlas(NamedTuple):
@@ -96,10 +107,12 @@ def _stencils(pts, c, B, w, K, S, h, tb, ds, pix, kk):
 
 
 @njit(cache=True, fastmath=False)
-def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active):
+def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
+    """Tile lists of the occluders (each list in the order ``order`` lists them), with each
+    occluder's grid-plane centre, culling radius and projected-ellipse conic (``circ`` (N, 6))."""
     n = mu.shape[0]
     wt = w // TILE
-    circ = np.empty((n, 3))
+    circ = np.empty((n, 6))
     counts = np.zeros(wt * wt, np.int64)
     for pass_ in range(2):
         if pass_ == 1:
@@ -112,7 +125,8 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active):
             start = np.zeros(1, np.int64)
             fill = np.zeros(1, np.int64)
             items = np.zeros(1, np.int64)
-        for i in range(n):
+        for ii in range(n):
+            i = ii if pass_ == 0 else order[ii]
             if pass_ == 0:
                 fx, fy, _ = _coords(mu[i, 0], mu[i, 1], mu[i, 2], c, B, S, h, 0.0, 1.0)
                 s00, s01, s02, s11, s12, s22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
@@ -131,6 +145,12 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active):
                 circ[i, 0] = (fx + 0.5) * h - 0.5 * S  # grid-plane coordinates of mu
                 circ[i, 1] = (fy + 0.5) * h - 0.5 * S
                 circ[i, 2] = r
+                det = p * q - o * o
+                if det > 1e-300 and r > 0.0:  # the k_sigma ellipse's conic (pixel test), else the circle
+                    circ[i, 3], circ[i, 4], circ[i, 5] = q / det, -o / det, p / det
+                else:
+                    circ[i, 3] = circ[i, 5] = k_sigma * k_sigma / max(r * r, 1e-300)
+                    circ[i, 4] = 0.0
             fx = (circ[i, 0] + 0.5 * S) / h - 0.5
             fy = (circ[i, 1] + 0.5 * S) / h - 0.5
             rp = circ[i, 2] / h + 1.0
@@ -151,47 +171,112 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active):
     return start, items, circ
 
 
-@njit(cache=True, parallel=prange_only(), fastmath=False)
-def _accumulate(occ, dir_dep, c, B, pixels, w, S, h, tb, ds, kmin, kmax, use_tiles, tile_start, tile_items, circ,
-                bin_skip, out, pairs, erfs):
+@njit(cache=True, **threaded(), fastmath=False)
+def _accumulate(g0, g1, occ, dir_dep, c, B, pixels, w, S, h, tb, ds, kmin, kmax, group_start, group_rows,
+                group_tile, tile_start, tile_items, circ, k2, starts, limits, bin_skip, out, pairs, erfs):
+    """Tile-major accumulation as ``dgsm_build._accumulate_point``: each group is the ROI pixels
+    (rows of ``pixels``/``out`` in ``group_rows[group_start[g]:group_start[g+1]]``) of one 8x8
+    tile, whose occluder list (sorted by the support starts ``starts``) is read once and tested
+    against every pixel of the group in one vectorisable loop (the pixel centre inside the
+    occluder's projected ``k_sigma`` ellipse, ``circ[o, 3:6]`` its conic, ``k2 = k_sigma^2``); a pixel takes only
+    occluders whose support starts before its cut depth (``limits[p]``, the centre of the deepest
+    bin its lookups read, lowered where the ray is opaque: ``dgsm_build._saturate``), the tile
+    stops at the first occluder past every cut. ``group_tile[g] < 0``: no culling, every occluder (in
+    ``tile_items``, sorted) for every
+    pixel. Groups ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
     nk = kmax - kmin + 1
-    wt = w // TILE
     lx, ly, lz = B[2, 0], B[2, 1], B[2, 2]
-    n_all = occ.shape[0]
-    for p in prange(pixels.shape[0]):
-        i = pixels[p] // w
-        j = pixels[p] % w
-        p1 = -0.5 * S + (i + 0.5) * h
-        p2 = -0.5 * S + (j + 0.5) * h
-        ox = c[0] + p1 * B[0, 0] + p2 * B[1, 0]
-        oy = c[1] + p1 * B[0, 1] + p2 * B[1, 1]
-        oz = c[2] + p1 * B[0, 2] + p2 * B[1, 2]
-        tau = np.zeros((1, nk))
-        diff = np.zeros((1, nk))
-        ne = 0
-        npairs = 0
-        if use_tiles:
-            t = (i // TILE) * wt + j // TILE
-            for q in range(tile_start[t], tile_start[t + 1]):
-                o = tile_items[q]
-                du = p1 - circ[o, 0]
-                dv = p2 - circ[o, 1]
-                if du * du + dv * dv > circ[o, 2] * circ[o, 2]:
+    for g in range(g0, g1):
+        r0 = group_start[g]
+        npx = group_start[g + 1] - r0
+        p1s = np.empty(npx)
+        p2s = np.empty(npx)
+        hit = np.zeros(npx, np.bool_)
+        tau = np.zeros((npx, nk))
+        diff = np.zeros((npx, nk))
+        ne = np.zeros(npx, np.int64)
+        npairs = np.zeros(npx, np.int64)
+        acc = np.zeros(npx)
+        endm = np.full(npx, -np.inf)
+        cut = np.empty(npx)
+        for a in range(npx):
+            p = group_rows[r0 + a]
+            p1s[a] = -0.5 * S + (pixels[p] // w + 0.5) * h
+            p2s[a] = -0.5 * S + (pixels[p] % w + 0.5) * h
+            cut[a] = limits[p]
+        cutmax = _max_of(cut, npx)
+        t = group_tile[g]
+        q0, q1 = (tile_start[t], tile_start[t + 1]) if t >= 0 else (0, tile_items.shape[0])
+        for q in range(q0, q1):
+            o = tile_items[q]
+            so = starts[o]
+            if so >= cutmax:
+                break  # past every pixel's cut (the list is sorted: so are all later ones)
+            cx, cy, ca, cb, cc = circ[o, 0], circ[o, 1], circ[o, 3], circ[o, 4], circ[o, 5]
+            nh = 0
+            for a in range(npx):  # branch-free: vectorised over the tile's pixels
+                du = p1s[a] - cx
+                dv = p2s[a] - cy
+                hh = ((ca * du * du + 2.0 * cb * du * dv + cc * dv * dv <= k2) | (t < 0)) & (so < cut[a])
+                hit[a] = hh
+                nh += hh
+            if nh == 0:
+                continue
+            for a in range(npx):
+                if not hit[a]:
                     continue
-                npairs += 1
-                ne += _accumulate_one(occ, o, ox, oy, oz, lx, ly, lz, dir_dep, ds, kmin, kmax, bin_skip, tau, diff,
-                                      0, -np.inf, tb)
-        else:
-            for o in range(n_all):
-                npairs += 1
-                ne += _accumulate_one(occ, o, ox, oy, oz, lx, ly, lz, dir_dep, ds, kmin, kmax, bin_skip, tau, diff,
-                                      0, -np.inf, tb)
-        run = 0.0
-        for k in range(nk):
-            run += diff[0, k]
-            out[p, k] = math.exp(-(tau[0, k] + run))
-        pairs[p] = npairs
-        erfs[p] = ne
+                npairs[a] += 1
+                ox = c[0] + p1s[a] * B[0, 0] + p2s[a] * B[1, 0]
+                oy = c[1] + p1s[a] * B[0, 1] + p2s[a] * B[1, 1]
+                oz = c[2] + p1s[a] * B[0, 2] + p2s[a] * B[1, 2]
+                r = _accumulate_one(occ, o, ox, oy, oz, lx, ly, lz, dir_dep, ds, kmin, kmax, bin_skip, tau, diff,
+                                    a, -np.inf, tb)
+                ne[a] += r[0]
+                if _saturate(r, a, acc, endm, cut):
+                    cutmax = _max_of(cut, npx)
+        for a in range(npx):
+            p = group_rows[r0 + a]
+            run = 0.0
+            for k in range(nk):
+                run += diff[a, k]
+                out[p, k] = math.exp(-(tau[a, k] + run))
+            pairs[p] = npairs[a]
+            erfs[p] = ne[a]
+
+
+def _sigma_along(cov6, l) -> np.ndarray:
+    """(N,) ``sqrt(l^T Sigma l)`` of (N, 6) covariances (xx, xy, xz, yy, yz, zz) along unit ``l``."""
+    cv = np.asarray(cov6, np.float64)
+    var = (cv[:, 0] * l[0] * l[0] + cv[:, 3] * l[1] * l[1] + cv[:, 5] * l[2] * l[2]
+           + 2.0 * (cv[:, 1] * l[0] * l[1] + cv[:, 2] * l[0] * l[2] + cv[:, 4] * l[1] * l[2]))
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def _projected_box(B, pts):
+    """``(c, ext, lo, hi)``: the grid's reference point (centre of the points' projected bounding
+    box, on the plane through the origin orthogonal to ``l``), the box's larger side and the
+    per-axis minima/maxima of ``pts @ B.T`` (grid coordinates and depth)."""
+    proj = pts @ B.T
+    lo, hi = proj.min(axis=0), proj.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    return B[0] * mid[0] + B[1] * mid[1], max(hi[0] - lo[0], hi[1] - lo[1], 1e-6), lo, hi
+
+
+def roi_pixel_count(direction, roi_points, width: int = 512) -> int:
+    """Number of grid pixels the bilinear stencils of ``roi_points`` (M, 3) touch in a
+    :func:`build_directional` grid of side ``width``: the pixel columns an atlas would compute."""
+    B = light_basis(direction)
+    pts = check_points("ROI points", roi_points)
+    if len(pts) == 0:
+        return 0
+    c, ext, _, _ = _projected_box(B, pts)
+    h = ext / (width - 2) * (1 + 1e-9)
+    pix = np.empty((len(pts), 4), np.int64)
+    kk = np.empty((len(pts), 2), np.int64)
+    _stencils(pts, c, B, width, 2, h * width, h, 0.0, 1.0, pix, kk)
+    mask = np.zeros(width * width, np.bool_)
+    mask[pix.ravel()] = True
+    return int(mask.sum())
 
 
 def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int = 512, K: int = 64,
@@ -209,11 +294,7 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
         z = np.zeros(0, np.int64)
         return DirAtlas(width, K, np.zeros(3), B, 1.0, 0.0, 1.0, 0, -1, np.full(width * width, -1, np.int32),
                         np.zeros((0, 0), np.float32), z, 0, 0)
-    proj = pts @ B.T
-    lo, hi = proj.min(axis=0), proj.max(axis=0)
-    mid = 0.5 * (lo + hi)
-    c = B[0] * mid[0] + B[1] * mid[1]
-    ext = max(hi[0] - lo[0], hi[1] - lo[1], 1e-6)
+    c, ext, lo, hi = _projected_box(B, pts)
     h = ext / (width - 2) * (1 + 1e-9)
     S = h * width
     s_min, s_max = lo[2], hi[2]
@@ -232,10 +313,17 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
     active = np.zeros(wt * wt, np.bool_)
     active[(pixels // width // TILE) * wt + (pixels % width) // TILE] = True
     if occ.shape[0]:
+        starts = support_starts((occ[:, :3] - c) @ B[2], occ, k_sigma, _sigma_along(cov6, B[2]))
+        order = np.argsort(starts, kind="stable").astype(np.int64)
         start, items, circ = _bin(np.ascontiguousarray(occ[:, :3]), np.ascontiguousarray(cov6, dtype=np.float64), c, B,
-                                  width, S, h, float(k_sigma), active)
-        _accumulate(occ, int(dir_dep), c, B, pixels, width, S, h, tb, ds, kmin, kmax, bool(use_tiles), start, items,
-                    circ, bool(bin_skip), out, pairs, erfs)
+                                  width, S, h, float(k_sigma), active, order)
+        if not use_tiles:
+            items = order
+        gs, rows, gt = _groups(pixels, width, use_tiles)
+        limits = tb + (deepest_bins(pix, kk, pixels, width * width) + 0.5) * ds
+        run_chunks(_accumulate, len(gs) - 1, occ, int(dir_dep), c, B, pixels, width, S, h, tb, ds, kmin, kmax, gs,
+                   rows, gt, start, items, circ, float(k_sigma) ** 2, starts, limits, bool(bin_skip), out, pairs, erfs,
+                   chunks_per_thread=8)
     return DirAtlas(width, K, c, B, h, tb, ds, kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()))
 
 
@@ -283,3 +371,99 @@ def pixel_rays(atlas: DirAtlas) -> tuple[np.ndarray, np.ndarray]:
     e1, e2, l = atlas.basis
     base = atlas.centre + p1[:, None] * e1 + p2[:, None] * e2
     return (base[:, None, :] + s[None, :, None] * l).reshape(-1, 3), l
+
+
+# ------------------------------------------------------------------ exact at points
+@njit(cache=True, **threaded(), fastmath=False)
+def _point_depths(g0, g1, occ, dir_dep, c, B, pts, group_start, group_rows, group_tile, tile_start, tile_items,
+                  circ, k2, starts, out, pairs):
+    """Optical depth on each point's own ray towards the light, grouped like the atlas pixels (the
+    points of one 8x8 tile per group, the tile's occluder list sorted by support start and
+    ellipse-tested for the whole group): a point takes the occluders whose support starts before
+    its own depth and stops when its ray is opaque (``dgsm_build.TAU_OPAQUE``)."""
+    lx, ly, lz = B[2, 0], B[2, 1], B[2, 2]
+    for g in range(g0, g1):
+        r0 = group_start[g]
+        npx = group_start[g + 1] - r0
+        p1s = np.empty(npx)
+        p2s = np.empty(npx)
+        cut = np.empty(npx)
+        acc = np.zeros(npx)
+        hit = np.zeros(npx, np.bool_)
+        npairs = np.zeros(npx, np.int64)
+        for a in range(npx):
+            m = group_rows[r0 + a]
+            rx, ry, rz = pts[m, 0] - c[0], pts[m, 1] - c[1], pts[m, 2] - c[2]
+            p1s[a] = rx * B[0, 0] + ry * B[0, 1] + rz * B[0, 2]
+            p2s[a] = rx * B[1, 0] + ry * B[1, 1] + rz * B[1, 2]
+            cut[a] = rx * lx + ry * ly + rz * lz  # the point's depth
+        cutmax = _max_of(cut, npx)
+        t = group_tile[g]
+        for q in range(tile_start[t], tile_start[t + 1]):
+            o = tile_items[q]
+            so = starts[o]
+            if so >= cutmax:
+                break
+            cx, cy, ca, cb, cc = circ[o, 0], circ[o, 1], circ[o, 3], circ[o, 4], circ[o, 5]
+            nh = 0
+            for a in range(npx):
+                du = p1s[a] - cx
+                dv = p2s[a] - cy
+                hh = (ca * du * du + 2.0 * cb * du * dv + cc * dv * dv <= k2) & (so < cut[a])
+                hit[a] = hh
+                nh += hh
+            if nh == 0:
+                continue
+            for a in range(npx):
+                if not hit[a]:
+                    continue
+                m = group_rows[r0 + a]
+                npairs[a] += 1
+                acc[a] += segment_depth(occ, o, pts[m, 0], pts[m, 1], pts[m, 2], lx, ly, lz, -np.inf, 0.0, dir_dep)
+                if acc[a] >= TAU_OPAQUE:
+                    cut[a] = -np.inf
+                    cutmax = _max_of(cut, npx)
+        for a in range(npx):
+            m = group_rows[r0 + a]
+            out[m] = math.exp(-acc[a])
+            pairs[m] = npairs[a]
+
+
+def transmittance_points(direction, occ, dir_dep: int, cov6, points, k_sigma: float = 3.0,
+                         max_width: int = 2048) -> tuple[np.ndarray, int]:
+    """Exact directional transmittance at ``points`` (M, 3) metres, no atlas: ``(T (M,) float64 in
+    [0, 1], pairs evaluated)``. Each point's own ray ``x + s l``, ``s <= 0``, sums the optical
+    depth of the occluders whose projected ``k_sigma`` ellipse contains it (the culling of
+    :func:`build_directional`: a dropped occluder adds below ``exp(-k_sigma^2/2)`` of its peak),
+    in order of their support starts, stopping at the point's depth and where the ray is opaque
+    (``T < exp(-TAU_OPAQUE)``). Cheaper than an atlas where the points are not much denser than
+    its pixels (each atlas pixel costs about one point, times the few bins of each pair's erf
+    window). Occluders are bucketed into 8x8-pixel tiles of a grid whose tile side is about two
+    median culling radii (at most ``max_width`` pixels a side)."""
+    B = light_basis(direction)
+    pts = check_points("points", points)
+    m = len(pts)
+    out = np.ones(m)
+    if m == 0 or occ.shape[0] == 0:
+        return out, 0
+    cv = np.ascontiguousarray(cov6, dtype=np.float64)
+    c, ext, _, _ = _projected_box(B, pts)
+    r_med = float(k_sigma) * float(np.sqrt(max(np.median(cv[:, 0] + cv[:, 3] + cv[:, 5]) / 3.0, 0.0)))
+    h = max(2.0 * r_med / TILE, ext / (max_width - 2), 1e-9)
+    width = int(TILE * math.ceil((ext / h + 2.0) / TILE))
+    S = h * width
+    i = np.clip(np.floor((pts @ B[0] - c @ B[0] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
+    j = np.clip(np.floor((pts @ B[1] - c @ B[1] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
+    flat = i * width + j
+    wt = width // TILE
+    active = np.zeros(wt * wt, np.bool_)
+    active[(i // TILE) * wt + j // TILE] = True
+    occ = np.ascontiguousarray(occ, dtype=np.float64)
+    starts = support_starts((occ[:, :3] - c) @ B[2], occ, k_sigma, _sigma_along(cv, B[2]))
+    start, items, circ = _bin(np.ascontiguousarray(occ[:, :3]), cv, c, B, width, S, h, float(k_sigma), active,
+                              np.argsort(starts, kind="stable").astype(np.int64))
+    gs, rows, gt = _groups(flat, width, True)
+    pairs = np.zeros(m, np.int64)
+    run_chunks(_point_depths, len(gs) - 1, occ, int(dir_dep), c, B, pts, gs, rows, gt, start, items, circ,
+               float(k_sigma) ** 2, starts, out, pairs, chunks_per_thread=8)
+    return np.clip(out, 0.0, 1.0), int(pairs.sum())
