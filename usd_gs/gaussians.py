@@ -23,6 +23,7 @@ acting on column vectors (world = R @ local).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -185,9 +186,14 @@ class GaussianSet:
     def unit_quaternions(self) -> np.ndarray:
         """(N, 4) float64 normalised (w, x, y, z); a zero quaternion becomes identity."""
         q = self.orientations.astype(np.float64)
-        n = np.linalg.norm(q, axis=1, keepdims=True)
-        out = np.where(n > 0, q / np.where(n > 0, n, 1.0), np.array([1.0, 0.0, 0.0, 0.0]))
-        return out
+        sq = q * q
+        n = ((sq[:, 0] + sq[:, 1]) + sq[:, 2]) + sq[:, 3]  # np.linalg.norm's order, its bits (tested)
+        n = np.sqrt(n, out=n)[:, None]
+        positive = n > 0
+        if positive.all():
+            q /= n
+            return q
+        return np.where(positive, q / np.where(positive, n, 1.0), np.array([1.0, 0.0, 0.0, 0.0]))
 
     def rotation_matrices(self) -> np.ndarray:
         """(N, 3, 3) float64 rotation matrices of the (normalised) quaternions."""
@@ -219,9 +225,17 @@ class GaussianSet:
         Float64 math; a zero quaternion counts as identity. Per axis i the half-width is
         ``n_sigma * sqrt(sum_j R_ij^2 s_j^2)``, computed row by row without (N, 3, 3) arrays.
         ``GaussianDataError`` names the first element whose box does not fit in float32.
+        In a process that has loaded numba, one kernel pass (``numba_kernels.extent``: the same
+        operations, the same bits) computes the box.
         """
         if self.count == 0:
             return np.zeros((2, 3), np.float32)
+        if "numba" in sys.modules:  # (loading numba only for this would cost more than it saves)
+            from numba_kernels.extent import gaussian_extent
+
+            box = gaussian_extent(self.positions, self.orientations, self.scales, n_sigma)
+            if box is not None:
+                return box.astype(np.float32)
         w, x, y, z = self.unit_quaternions().T
         s2 = self.scales.astype(np.float64) ** 2
         rows = (
@@ -250,6 +264,21 @@ class GaussianSet:
         """Gaussians selected by an integer index array, slice or boolean mask."""
         def take(a):
             return None if a is None else a[index]
+        if isinstance(index, slice) or (isinstance(index, np.ndarray) and index.ndim == 1
+                                        and index.dtype.kind in "biu"):
+            # rows of a valid set are a valid set: made contiguous float32 as __post_init__ does, not checked again
+            out = object.__new__(GaussianSet)
+
+            def c(a):
+                return np.ascontiguousarray(a, dtype=np.float32)
+            out.positions, out.orientations, out.scales = c(self.positions[index]), c(self.orientations[index]), \
+                c(self.scales[index])
+            out.opacities, out.sh = c(self.opacities[index]), c(self.sh[index])
+            out.log_scales = None if self.log_scales is None else c(self.log_scales[index])
+            out.logit_opacities = None if self.logit_opacities is None else c(self.logit_opacities[index])
+            out.extras = {k: np.ascontiguousarray(v[index]) for k, v in self.extras.items()}
+            out.label = self.label
+            return out
         return GaussianSet(
             self.positions[index], self.orientations[index], self.scales[index],
             self.opacities[index], self.sh[index], take(self.log_scales),
@@ -301,7 +330,7 @@ class GaussianSet:
         u, _, vt = np.linalg.svd(q)
         q = u @ vt
         reflect = np.linalg.det(q) < 0
-        pos = self.positions.astype(np.float64) @ lin.T + t
+        pos = _matmul_rows(self.positions.astype(np.float64), lin.T) + t
         quat = self.unit_quaternions()
         if reflect:
             # Q = Q' F with F = diag(-1, 1, 1) and Q' a rotation. The new frame Q R F (its first
@@ -338,6 +367,24 @@ class GaussianSet:
         extras = {k: np.concatenate([g.extras[k] for g in sets]) for k in sorted(keys)}
         return GaussianSet(cat("positions"), cat("orientations"), cat("scales"), cat("opacities"),
                            cat("sh"), cat("log_scales"), cat("logit_opacities"), extras, label=label)
+
+
+#: rows of one matmul in _matmul_rows: (rows x 3) @ (3 x 3) stays below OpenBLAS's threading threshold
+#: (m n k < 262144), so one thread computes each block
+_MATMUL_ROWS = 16384
+
+
+def _matmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for (N, 3) ``a`` and (3, 3) ``b`` (float64), in row blocks of :data:`_MATMUL_ROWS`:
+    the same values (each row's products are the same), without the BLAS threads that, on a busy
+    machine, wait longer for each other than the product takes (measured 8x on 152k rows)."""
+    n = a.shape[0]
+    if n <= _MATMUL_ROWS:
+        return a @ b
+    out = np.empty((n, b.shape[1]), np.result_type(a, b))
+    for i in range(0, n, _MATMUL_ROWS):
+        out[i:i + _MATMUL_ROWS] = a[i:i + _MATMUL_ROWS] @ b
+    return out
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -162,8 +162,14 @@ def find_gaussian_prims(stage: Usd.Stage) -> list[Usd.Prim]:
     return prims
 
 
+def _all_finite(arr: np.ndarray) -> bool:
+    """True when every element of the float array is finite: its sum is (a NaN or infinity makes
+    the sum one; a sum that overflows only sends the caller to its element-wise check)."""
+    return arr.size == 0 or bool(np.isfinite(np.add.reduce(arr, axis=None)))
+
+
 def _check_finite(arr: np.ndarray, where: str, name: str) -> None:
-    if arr.size == 0 or np.isfinite(arr.reshape(-1)).all():  # fast path: one flat pass
+    if _all_finite(arr) or np.isfinite(arr.reshape(-1)).all():  # fast paths: one sum, one flat pass
         return
     bad = ~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1)
     if bad.any():
@@ -259,7 +265,8 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
         _check_finite(arrays[name], where, names[name])
 
     quat_xyzw = arrays[ORIENTATIONS]
-    zero = ~np.any(quat_xyzw != 0, axis=1) if n else np.zeros(0, bool)
+    # a row of four False bytes is a zero uint32: a zero-length quaternion
+    zero = (np.ascontiguousarray(quat_xyzw != 0).view(np.uint32).reshape(n) == 0) if n else np.zeros(0, bool)
     if zero.any():  # no rotation at all: every reader and writer would have to invent one
         raise GaussianDataError(f"{where}: attribute '{names[ORIENTATIONS]}' element {first_bad_index(zero)} is a "
                                 f"zero-length quaternion ({int(zero.sum())} such elements)")
@@ -298,6 +305,8 @@ def _check_transformed(gs: GaussianSet, path: str, tc: Usd.TimeCode) -> Gaussian
     at = "" if tc.IsDefault() or tc.IsEarliestTime() else f" at time {tc.GetValue():g}"
     for name in ("positions", "scales", "orientations"):
         arr = getattr(gs, name)
+        if _all_finite(arr):
+            continue
         bad = ~np.isfinite(arr).all(axis=1) if len(arr) else np.zeros(0, bool)
         if bad.any():
             i = first_bad_index(bad)
