@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .dgsm_build import TILE, Atlas, _accumulate_point, _footprints, atlas_buffers, far_distance, order_tiles, t_max_for
+from .dgsm_build import TILE, Atlas, _accumulate_point, _footprints, atlas_buffers, far_distance, t_max_for
 from .dgsm_model import check_points, check_vector
 from .jit_options import prange_only
 from .thread_chunks import run_chunks
@@ -179,10 +179,9 @@ def build_point_cube(light, occ, dir_dep: int, cov6, roi_points, face: int = 208
         items = np.empty(start[-1], np.int64)
         _tile_lists(tcone, cone, theta, counts, start, items, True)
         glob = np.flatnonzero(is_glob).astype(np.int64)
-        starts = order_tiles(light, occ, (start, items, glob, cone), k_sigma)
         run_chunks(_accumulate_point, len(gs) - 1, light, occ, int(dir_dep), pdirs, K, float(t_max), kmin, kmax, gs,
-                   order.astype(np.int64), gt, start, items, glob, cone, starts, np.full(len(pixels), np.inf),
-                   bool(bin_skip), out, pairs, erfs, chunks_per_thread=8)
+                   order.astype(np.int64), gt, start, items, glob, cone, bool(bin_skip), out, pairs, erfs,
+                   chunks_per_thread=8)
     return Atlas(F, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), None)
 
 

@@ -36,16 +36,11 @@ start: for a point light ``z(0) <= -ZC`` whenever the light lies outside the occ
 a pair with ``z(0) >= ZC`` (support behind the light) is dropped. Error per (pixel,
 occluder) < ``2.2e-17 * scale``.
 
-Depth cuts (beyond the paper): each tile's occluders are taken in the order of their support
-starts (:func:`support_starts`: a lower bound of the ray depth before which an occluder adds less
-than ``erfc(Z_CUT) = 7.4e-7`` of its full step). A pixel takes only occluders that start before
-its cut: the centre of the deepest bin any ROI lookup reads in that pixel (occluders behind every
-receiver of the pixel change no value that is read), lowered to where the ray has gathered an
-optical depth of ``TAU_OPAQUE = 12`` (the bins behind hold ``T < 6.1e-6`` whatever follows); a
-tile stops at the first occluder past all its pixels' cuts. So a voxel that a lookup reads is
-exact to ``max(6.1e-6, the truncations above)``, and a pixel's bins beyond its deepest read bin
-hold partial values (no lookup of the ROI points reads them). ``StaticSceneAtlas`` computes
-whole columns (no deepest-bin cut), since later frames may read any bin.
+The depth cuts of the directional build (``dgsm_directional``: occluders by support start,
+:func:`support_starts`; a pixel's cut at its deepest read bin and where its ray turns opaque,
+:func:`_saturate`) live here with the shared pair kernel; the point-light build does not use
+them: on the demo's avatar casters the rays seldom turn opaque and the receivers lie behind the
+casters, so they skipped under 3 % of the pairs and their bookkeeping cost 15 % of the build.
 """
 
 from __future__ import annotations
@@ -390,38 +385,6 @@ def support_starts(centre_depth, occ, k_sigma: float, sigma_along=None) -> np.nd
     return np.asarray(centre_depth, np.float64) - (float(k_sigma) + SUPPORT_SIGMAS) * sig
 
 
-@njit(cache=True, **threaded(), fastmath=False)
-def _sort_tile_lists(t0, t1, tile_start, items, key):
-    """Sort each tile's occluder list ``items[tile_start[t]:tile_start[t+1]]`` by ``key`` (tiles t0..t1-1)."""
-    for t in range(t0, t1):
-        a, b = tile_start[t], tile_start[t + 1]
-        if b - a > 1:
-            seg = items[a:b].copy()
-            order = np.argsort(key[seg], kind="mergesort")
-            for q in range(b - a):
-                items[a + q] = seg[order[q]]
-
-
-def sort_tiles_by(tile_start, items, key) -> None:
-    """In place: each tile's list in ``items`` ordered by ``key`` (N,) float64 (stable)."""
-    run_chunks(_sort_tile_lists, len(tile_start) - 1, tile_start, items, np.ascontiguousarray(key, np.float64),
-               min_chunk=64)
-
-
-def order_tiles(light, occ, tiles, k_sigma: float) -> np.ndarray:
-    """Support starts (:func:`support_starts`, distances from the point ``light`` (3,)) of the
-    occluders ``occ``, with the tile lists and the global list of ``tiles`` (``bin_tiles``' result
-    or the no-culling lists) sorted by them in place, as :func:`accumulate_pixels` needs them."""
-    occ = np.asarray(occ)
-    starts = support_starts(np.linalg.norm(occ[:, :3] - np.asarray(light, np.float64), axis=1), occ, k_sigma)
-    start, items, glob, _ = tiles
-    if len(start) > 1:
-        sort_tiles_by(start, items, starts)
-    if len(glob) > 1:
-        glob[:] = glob[np.argsort(starts[glob], kind="stable")]
-    return starts
-
-
 @njit(cache=True, fastmath=False, inline="always")
 def _saturate(r, a, acc, endm, cut):
     """Opacity bookkeeping of pixel ``a`` after one pair (``r`` = :func:`_accumulate_one`'s result):
@@ -507,20 +470,15 @@ accumulate_one_call = njit(cache=True, fastmath=False)(_accumulate_one.py_func)
 
 @njit(cache=True, **threaded(), fastmath=False)
 def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
-                      group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, starts, limits,
-                      bin_skip, out, pairs, erfs):
+                      group_start, group_rows, group_tile, tile_start, tile_items, glob, cone, bin_skip,
+                      out, pairs, erfs):
     """Tile-major accumulation: each group is the ROI pixels of one 8x8 tile (rows of
     ``pixels``/``out`` listed in ``group_rows[group_start[g]:group_start[g+1]]``); the tile's
-    occluders are read once, in the order of their support starts ``starts`` (each tile's list
-    sorted by :func:`sort_tiles_by`), and cone-tested against every pixel of the group; a pixel
-    takes only occluders whose support starts before its cut depth: ``limits[p]`` (the centre of
-    the deepest bin its lookups read, or inf), lowered to where the ray is opaque
-    (:func:`_saturate`); the tile stops at the first occluder past every pixel's cut. Bins of a
-    pixel beyond ``limits[p]`` therefore hold partial depths. ``glob`` occluders are evaluated for every
-    pixel without a cone test. ``group_tile[g] < 0``
-    means no tile list (the no-culling ablation passes every occluder in ``glob``). ``pdirs``
-    (|P|, 3) are the unit directions of the pixel centres (any direction parameterisation).
-    Groups ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
+    occluders are read once and cone-tested against every pixel of the group; ``glob``
+    occluders are evaluated for every pixel without a cone test. ``group_tile[g] < 0`` means
+    no tile list (the no-culling ablation passes every occluder in ``glob``). ``pdirs`` (|P|, 3)
+    are the unit directions of the pixel centres (any direction parameterisation). Groups
+    ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
     nk = kmax - kmin + 1
     dt = t_max / K
     ox, oy, oz = light[0], light[1], light[2]
@@ -535,44 +493,27 @@ def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
         diff = np.zeros((npx, nk))
         ne = np.zeros(npx, np.int64)
         npairs = np.zeros(npx, np.int64)
-        acc = np.zeros(npx)
-        endm = np.full(npx, -np.inf)
-        cut = np.empty(npx)
         for a in range(npx):
             p = group_rows[r0 + a]
             dxs[a], dys[a], dzs[a] = pdirs[p, 0], pdirs[p, 1], pdirs[p, 2]
-            cut[a] = limits[p]
-        cutmax = _max_of(cut, npx)
-        for a in range(npx):  # the global occluders first (they can make a pixel opaque early)
-            dx, dy, dz = dxs[a], dys[a], dzs[a]
-            for q in range(glob.shape[0]):  # a call, not a second inlined copy (compile time; few occluders)
-                if starts[glob[q]] >= cut[a]:
-                    continue
-                r = accumulate_one_call(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
-                                        bin_skip, tau, diff, a, 0.0, 0.0)
-                ne[a] += r[0]
-                if _saturate(r, a, acc, endm, cut):
-                    cutmax = _max_of(cut, npx)
-            npairs[a] += glob.shape[0]
         t = group_tile[g]
         if t >= 0:
             for q in range(tile_start[t], tile_start[t + 1]):
                 o = tile_items[q]
-                so = starts[o]
-                if so >= cutmax:
-                    break  # past every pixel's cut (the list is sorted: so are all later ones)
                 if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
                     continue
                 for a in range(npx):
-                    if not hit[a] or so >= cut[a]:
+                    if not hit[a]:
                         continue
                     npairs[a] += 1
-                    r = _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
-                                        bin_skip, tau, diff, a, 0.0, 0.0)
-                    ne[a] += r[0]
-                    if _saturate(r, a, acc, endm, cut):
-                        cutmax = _max_of(cut, npx)
+                    ne[a] += _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
+                                             bin_skip, tau, diff, a, 0.0, 0.0)[0]
         for a in range(npx):
+            dx, dy, dz = dxs[a], dys[a], dzs[a]
+            for q in range(glob.shape[0]):  # a call, not a second inlined copy (compile time; few occluders)
+                ne[a] += accumulate_one_call(occ, glob[q], ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax,
+                                             bin_skip, tau, diff, a, 0.0, 0.0)[0]
+            npairs[a] += glob.shape[0]
             p = group_rows[r0 + a]
             run = 0.0
             for k in range(nk):
@@ -626,24 +567,18 @@ def pixel_directions(pixels, width: int) -> np.ndarray:
 
 
 def accumulate_pixels(light, occ, dir_dep: int, pixels, width: int, K: int, t_max: float, kmin: int, kmax: int,
-                      tiles, use_tiles: bool, bin_skip: bool, out, pairs, erfs, starts, deepest=None) -> None:
+                      tiles, use_tiles: bool, bin_skip: bool, out, pairs, erfs) -> None:
     """Transmittance of the atlas pixels ``pixels`` (sorted flat ids) over bins ``kmin..kmax``
     into ``out`` (len(pixels), kmax - kmin + 1) float32, with per-pixel counters ``pairs`` and
     ``erfs`` (int64): the accumulation step of :func:`build_point`. ``tiles``:
     ``bin_tiles``' lists (every tile the pixels lie in must have been active), or with
-    ``use_tiles=False`` lists whose ``glob`` holds every occluder; ``starts``: what
-    :func:`order_tiles` returned for them (the lists sorted by it); ``deepest``: (len(pixels),)
-    the deepest bin each pixel's lookups read (:func:`roi_voxels`), None for whole columns
-    (bins of a pixel beyond its deepest are then partial, see :func:`_accumulate_point`)."""
+    ``use_tiles=False`` lists whose ``glob`` holds every occluder."""
     start, items, glob, cone = tiles
     gs, rows, gt = _groups(pixels, width, use_tiles)
     pdirs = pixel_directions(pixels, width)
-    occ = np.ascontiguousarray(occ, dtype=np.float64)
-    limits = (np.full(len(pixels), np.inf) if deepest is None
-              else (np.asarray(deepest, np.float64) + 0.5) * (float(t_max) / K))
-    run_chunks(_accumulate_point, len(gs) - 1, light, occ, int(dir_dep), pdirs, K, float(t_max), kmin, kmax, gs,
-               rows, gt, start, items, glob, cone, starts, limits, bool(bin_skip), out, pairs, erfs,
-               chunks_per_thread=8)
+    run_chunks(_accumulate_point, len(gs) - 1, light, np.ascontiguousarray(occ, dtype=np.float64), int(dir_dep),
+               pdirs, K, float(t_max), kmin, kmax, gs, rows, gt, start, items, glob, cone, bool(bin_skip), out, pairs,
+               erfs, chunks_per_thread=8)
 
 
 def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K: int = 64,
@@ -665,9 +600,9 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
     if t_max is None:
         t_max = t_max_for(far_distance(light, pts), K)
     if use_roi:
-        pixels, kmin, kmax, deepest = roi_voxels(light, pts, width, K, t_max, deepest=True)
+        pixels, kmin, kmax = roi_voxels(light, pts, width, K, t_max)
     else:
-        pixels, kmin, kmax, deepest = np.arange(width * width, dtype=np.int64), 0, K - 1, None
+        pixels, kmin, kmax = np.arange(width * width, dtype=np.int64), 0, K - 1
     index, out, pairs, erfs = atlas_buffers(width * width, pixels, kmin, kmax)
     nk = out.shape[1]
     if len(pixels) and nk and occ.shape[0]:
@@ -684,8 +619,7 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
             items = np.zeros(0, np.int64)
             glob = np.arange(occ.shape[0], dtype=np.int64)
             cone = np.zeros((0, 4))
-        starts = order_tiles(light, occ, (start, items, glob, cone), k_sigma)
         accumulate_pixels(light, occ, dir_dep, pixels, width, K, t_max, kmin, kmax, (start, items, glob, cone),
-                          use_tiles, bin_skip, out, pairs, erfs, starts, deepest)
+                          use_tiles, bin_skip, out, pairs, erfs)
     tiles = (start, items, glob, cone) if (use_tiles and len(pixels) and nk and occ.shape[0]) else None
     return Atlas(width, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), tiles)

@@ -1,4 +1,4 @@
-"""The cost cuts of the DGSM builds against the exact transmittance: occluders sorted by support
+"""The cost cuts of the directional DGSM build against the exact transmittance: occluders sorted by support
 start, a pixel's cut at its deepest read bin and where its ray turns opaque, the projected-ellipse
 test (directional), and the exact per-point directional path (``transmittance_points``)."""
 
@@ -6,12 +6,10 @@ import numpy as np
 import pytest
 from dgsm_testutil import random_occluders
 
-from numba_kernels.dgsm_build import TAU_OPAQUE, build_point, support_starts
+from numba_kernels.dgsm_build import TAU_OPAQUE, support_starts
 from numba_kernels.dgsm_directional import build_directional, lookup_directional, pixel_rays, transmittance_points
-from numba_kernels.dgsm_exact import transmittance_directional, transmittance_point
+from numba_kernels.dgsm_exact import transmittance_directional
 from numba_kernels.dgsm_model import pack_gaussians
-from numba_kernels.dgsm_sample import lookup_point
-from numba_kernels.octahedral import pixel_directions as oct_pixel_directions
 
 LDIR = np.array([0.3, -1.0, 0.2])
 
@@ -65,21 +63,6 @@ def test_directional_atlas_voxels_exact_despite_cuts(seed):
     assert at.pairs < 0.5 * len(occ) * len(at.pixels)
     got = lookup_directional(build_directional(LDIR, occ, dd, cov6, pts, width=256, K=32, k_sigma=8.0), pts)
     assert np.abs(got - transmittance_directional(l, pts, occ, dd)).mean() < 0.02  # interpolation only
-
-
-def test_point_atlas_voxels_exact_despite_cuts():
-    occ, dd, cov6, pts = _mixed_scene(3)
-    light = np.array([0.1, 2.6, -0.05])
-    far = light + 2.5 * (pts - light)  # same pixels, deeper: every pixel's deepest bin is the last
-    at = build_point(light, occ, dd, cov6, np.concatenate([pts, far]), width=64, K=24, k_sigma=8.0)
-    dirs = oct_pixel_directions(at.width).reshape(-1, 3)[at.pixels]
-    tk = (np.arange(at.kmin, at.kmax + 1) + 0.5) * at.t_max / at.K
-    vox = (light + dirs[:, None, :] * tk[None, :, None]).reshape(-1, 3)
-    ex = transmittance_point(light, vox, occ, dd).reshape(len(at.pixels), -1)
-    np.testing.assert_allclose(at.values, ex, atol=2e-6 + np.exp(-TAU_OPAQUE))
-    assert (ex < 1e-6).mean() > 0.2
-    got = lookup_point(build_point(light, occ, dd, cov6, pts, width=128, K=48, k_sigma=8.0), light, pts)
-    assert np.abs(got - transmittance_point(light, pts, occ, dd)).mean() < 0.02
 
 
 def test_support_starts_bound_the_depth_added_before_them():

@@ -197,8 +197,7 @@ def warm_up(groups=GROUPS) -> None:
         out = np.ones((4, atlas.K), np.float32)
         dgsm_build.accumulate_pixels(light.position, occ, dir_dep, atlas.pixels[:4], atlas.width, atlas.K,
                                      atlas.t_max, 0, atlas.K - 1, atlas.tiles, True, opts.dgsm.bin_skip, out,
-                                     np.zeros(4, np.int64), np.zeros(4, np.int64),
-                                     dgsm_build.order_tiles(light.position, occ, atlas.tiles, opts.dgsm.k_sigma))
+                                     np.zeros(4, np.int64), np.zeros(4, np.int64))
         centre_cfg = replace(opts.dgsm, sampling="center")
         recv = Receivers.build([("/scene", scene)])
         drecv = Receivers.build([("/avatar", avatar)])

@@ -45,7 +45,6 @@ class StaticSceneAtlas:
         wt = self.width // dgsm_build.TILE
         self.tiles = dgsm_build.bin_tiles(self.light, np.ascontiguousarray(self.occ[:, :3]), cov6, self.width,
                                           cfg.k_sigma, np.ones(wt * wt, np.bool_)) if self.count else None
-        self.starts = dgsm_build.order_tiles(self.light, self.occ, self.tiles, cfg.k_sigma) if self.count else None
         self.index = np.full(self.width * self.width, -1, np.int32)
         self.values = np.ones((0, self.K), np.float32)
         self.pixels = np.zeros(0, np.int64)
@@ -67,8 +66,7 @@ class StaticSceneAtlas:
         pairs = np.zeros(new.size, np.int64)
         erfs = np.zeros(new.size, np.int64)
         dgsm_build.accumulate_pixels(self.light, self.occ, self.dir_dep, new, self.width, self.K, self.t_max, 0,
-                                     self.K - 1, self.tiles, True, self.cfg.bin_skip, out, pairs, erfs,
-                                     self.starts)
+                                     self.K - 1, self.tiles, True, self.cfg.bin_skip, out, pairs, erfs)
         self.index[new] = np.arange(self.pixels.size, self.pixels.size + new.size, dtype=np.int32)
         self.values = np.concatenate([self.values, out]) if self.values.size else out
         self.pixels = np.concatenate([self.pixels, new])
