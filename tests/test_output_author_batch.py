@@ -93,3 +93,24 @@ def test_display_changes_per_prim_equal_the_single_prim_bound():
     got = sh_display_changes(a, b, offsets)
     want = [sh_display_change(a[i:j], b[i:j]) for i, j in zip(offsets[:-1], offsets[1:], strict=True)]
     assert got.tolist() == want and want[1] == 0.0 and min(want[0], want[2], want[3]) > 0.1
+
+
+def test_receiver_keeps_the_unaffected_half_values_only_while_the_bits_are_the_same():
+    stage = Usd.Stage.CreateInMemory()
+    author = OutputAuthor(stage, [1, 2, 3], (), "half", 0.0)
+    sh_in = np.full((4, 1, 3), 0.25, np.float32)
+    t = np.ones(4, np.float32)
+    assert author.receiver("/P", 1, t, sh_in * np.float32(0.5), sh_in)
+    other = sh_in.copy()
+    other[2, 0, 1] = 0.75  # another unaffected SH: the cached halves must not be used
+    assert author.receiver("/P", 2, t, other, other)
+    attr = stage.GetPrimAtPath("/P").GetAttribute("radiance:sphericalHarmonicsCoefficientsh")
+    np.testing.assert_array_equal(np.asarray(attr.Get(2)), other.reshape(-1, 3).astype(np.float16))
+    # the hold sample before a change is the unaffected SH of that frame, to the bit: -0.0, not the +0.0 before
+    author = OutputAuthor(stage, [1, 2, 3], (), "half", 0.0)
+    zeros = np.zeros((4, 1, 3), np.float32)
+    assert not author.receiver("/Q", 1, t, zeros, zeros)
+    assert not author.receiver("/Q", 2, t, -zeros, -zeros)
+    assert author.receiver("/Q", 3, t, zeros + np.float32(0.5), -zeros)
+    held = np.asarray(stage.GetPrimAtPath("/Q").GetAttribute("radiance:sphericalHarmonicsCoefficientsh").Get(2))
+    assert (held == 0).all() and np.signbit(held).all()

@@ -190,11 +190,12 @@ class ShotProcessor:
         self.clock.add("open", t0)
 
     def _read(self, path: str, frame: float):
-        return read_gaussian_prim(self.prims[path], Usd.TimeCode(frame))
+        # (the attribute types were checked by _open's describe_gaussian_prim)
+        return read_gaussian_prim(self.prims[path], Usd.TimeCode(frame), check_types=False)
 
     def _read_static(self):
         t0 = time.perf_counter()
-        self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime())
+        self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime(), check_types=False)
                        for r in self.roles if not r.per_frame}
         self.clock.add("read", t0)
 
@@ -648,12 +649,15 @@ class ShotProcessor:
         skinned = has_skel_binding(prim)
         tc = Usd.TimeCode.EarliestTime() if static else Usd.TimeCode(frame)
         if skinned:
-            sh = read_gaussian_prim(prim, tc, world=False, skin=False).sh
+            sh = read_gaussian_prim(prim, tc, world=False, skin=False, check_types=False).sh
         else:
             m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc).ExtractRotationMatrix())
-            s = abs(np.linalg.det(m)) ** (1.0 / 3.0)
-            sh = g.sh if s > 0 and np.allclose(m / s, np.eye(3), atol=1e-9) else read_gaussian_prim(
-                prim, tc, world=False).sh
+            plain = self.__dict__.setdefault("_no_rotation", {})  # rotation matrix bytes -> no rotation?
+            key = m.tobytes()
+            if key not in plain:  # (bricks share their parent's transform: decided once)
+                s = abs(np.linalg.det(m)) ** (1.0 / 3.0)
+                plain[key] = bool(s > 0 and np.allclose(m / s, np.eye(3), atol=1e-9))
+            sh = g.sh if plain[key] else read_gaussian_prim(prim, tc, world=False, check_types=False).sh
         if static or skinned:
             self._local_sh_cache[path] = sh
         return sh
@@ -678,7 +682,8 @@ class ShotProcessor:
             buf.orientations[a:b] = g.orientations
             buf.scales[a:b] = g.scales
             buf.opacities[a:b] = g.opacities
-            buf.sh[a:b] = 0.0
+            if g.sh.shape[1] < k:  # (else the copy below overwrites every coefficient)
+                buf.sh[a:b] = 0.0
             buf.sh[a:b, : g.sh.shape[1]] = g.sh[:, :k]
         return buf, spans
 

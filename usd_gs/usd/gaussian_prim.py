@@ -113,6 +113,19 @@ def data_attribute(prim: Usd.Prim, name: str) -> tuple[Usd.Attribute | None, str
     return None, "float"
 
 
+def _data_array(prim: Usd.Prim, name: str, time: Usd.TimeCode) -> tuple[Usd.Attribute | None, np.ndarray | None]:
+    """``(data_attribute(prim, name)[0], read_array(that, time))``, the float attribute's value at
+    ``Usd.TimeCode.EarliestTime()`` (which :func:`uses_float` reads) not read twice."""
+    attr = prim.GetAttribute(name)
+    if attr:
+        first = attr.Get(Usd.TimeCode.EarliestTime())
+        if first is not None and len(first) > 0:  # uses_float
+            value = first if time.IsEarliestTime() else attr.Get(time)
+            return attr, None if value is None else np.asarray(value)
+    attr, _ = data_attribute(prim, name)
+    return attr, read_array(attr, time)
+
+
 def read_array(attr: Usd.Attribute | None, time: Usd.TimeCode) -> np.ndarray | None:
     """Zero-copy read-only numpy view of an array attribute at ``time`` (None if no value)."""
     if attr is None:
@@ -188,7 +201,8 @@ def _degree(prim: Usd.Prim) -> tuple[int, bool]:
 
 
 # --------------------------------------------------------------------------- reading
-def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool = True) -> GaussianSet:
+def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool = True, *,
+                       check_types: bool = True) -> GaussianSet:
     """Read one Gaussian splat prim as a :class:`GaussianSet` labelled with the prim path.
 
     ``time``: ``Usd.TimeCode``/number/None (``Default``); time-sampled attributes are read
@@ -201,7 +215,9 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
     A prim with a UsdSkel binding (``usd_gs.usd.skel``: ``UsdSkel.BindingAPI``, a skeleton with a
     SkelAnimation) holds its bind pose; it is returned skinned at ``time`` (world space, or
     prim-local with ``world=False``) unless ``skin=False`` (the authored bind pose, read as if
-    unbound). Raw log-scales are dropped from skinned sets.
+    unbound). Raw log-scales are dropped from skinned sets. ``check_types=False`` skips the check of
+    the authored value types (``usd_gs.usd.attr_types.require_types``), for a caller that made it on
+    this prim of this stage already (:func:`describe_gaussian_prim` makes it).
 
     Unauthored ``opacities`` read as 1 (the schema rule); the arrays of a prim without a
     transform are read-only zero-copy views of USD memory (copy before editing in place).
@@ -216,14 +232,14 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
     where = f"{path} ({_time_str(tc)})" if not tc.IsDefault() else path
     if not is_gaussian_prim(prim):
         raise InputFormatError(f"{path}: prim type '{prim.GetTypeName()}' is not {GS_TYPE}")
-    require_types(prim)  # wrongly typed attributes (float[] orientations, a token degree) before any read
+    if check_types:
+        require_types(prim)  # wrongly typed attributes (float[] orientations, a token degree) before any read
 
     arrays: dict[str, np.ndarray | None] = {}
     names: dict[str, str] = {}
     for name in DATA_ATTRS:
-        attr, _ = data_attribute(prim, name)
+        attr, arr = _data_array(prim, name, tc)
         names[name] = attr.GetName() if attr is not None else name
-        arr = read_array(attr, tc)
         if arr is not None and arr.dtype == np.float16:
             arr = arr.astype(np.float32)  # once, so every later check runs on float32
         arrays[name] = arr

@@ -138,6 +138,7 @@ class OutputAuthor:
         self._previous = dict(zip(frames[1:], frames[:-1], strict=True))
         self._tracks: dict[tuple[str, str], _Track] = {}
         self._sh_attrs: dict[str, tuple] = {}  # prim path -> (K, the SH attribute _sh_attr made)
+        self._halves: dict[str, tuple] = {}  # prim path -> (float32 bits, half) of receiver()'s unaffected SH
         self.samples_written = 0
 
     # ------------------------------------------------------------------ attributes
@@ -228,12 +229,27 @@ class OutputAuthor:
         half = self.precision == "half"
         shape = (n * k, 3)
         if half:
-            value, unaffected = _to_half(sh_out.reshape(shape), prim_path), _to_half(sh_in.reshape(shape), prim_path)
+            value = _to_half(sh_out.reshape(shape), prim_path)
+            unaffected = self._half_unaffected(prim_path, sh_in, shape)
         else:
             value, unaffected = sh_out.astype(np.float32).reshape(shape), sh_in.astype(np.float32).reshape(shape)
         changed |= self._put(prim_path, SH_COEFFS, None, Vt.Vec3hArray if half else Vt.Vec3fArray, value,
                              unaffected, frame, False, make_attr=lambda: self._sh_attr(prim_path, k))
         return changed
+
+    def _half_unaffected(self, prim_path: str, sh_in: np.ndarray, shape) -> np.ndarray:
+        """``_to_half(sh_in.reshape(shape))``, kept per prim: the unaffected SH of a moving prim is
+        mostly the same from frame to frame, and comparing its float32 bits costs less than the
+        conversion."""
+        if sh_in.dtype != np.float32:
+            return _to_half(sh_in.reshape(shape), prim_path)
+        bits = np.ascontiguousarray(sh_in).reshape(shape).view(np.uint32)
+        got = self._halves.get(prim_path)
+        if got is not None and got[0].shape == bits.shape and np.array_equal(got[0], bits):
+            return got[1]
+        half = _to_half(sh_in.reshape(shape), prim_path)
+        self._halves[prim_path] = (bits.copy(), half)
+        return half
 
     def receivers(self, frame: float, paths, offsets, transmittance: np.ndarray, sh_out: np.ndarray,
                   sh_in: np.ndarray) -> np.ndarray:
