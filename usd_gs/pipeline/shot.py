@@ -173,7 +173,8 @@ class ShotProcessor:
         if not prims:
             raise UserError(f"{self.input_path}: no ParticleField3DGaussianSplat prims to process")
         self.prims = {str(p.GetPath()): p for p in prims}
-        infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime()) for p in prims]
+        shared: dict = {}  # (the prims' ancestors read once)
+        infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime(), shared=shared) for p in prims]
         self.counts = {i.path: i.count for i in infos}
         self.roles, warnings = resolve_roles(infos, self.opts.scene_paths, self.opts.avatar_paths,
                                              self.opts.object_paths)

@@ -424,13 +424,15 @@ def _xform_chain(prim: Usd.Prim):
         p = p.GetParent()
 
 
-def describe_gaussian_prim(prim: Usd.Prim, time=None) -> GaussianPrimInfo:
-    """:class:`GaussianPrimInfo` of ``prim`` at ``time`` (no SH data is read)."""
+def describe_gaussian_prim(prim: Usd.Prim, time=None, *, shared: dict | None = None) -> GaussianPrimInfo:
+    """:class:`GaussianPrimInfo` of ``prim`` at ``time`` (no SH data is read). ``shared``: a dict
+    that calls for prims of one stage at one ``time`` pass (the stage unchanged between them), in
+    which what ancestors share is kept (their transforms' time samples, a ``UsdGeom.XformCache``)."""
     tc = as_time(time)
     path = prim.GetPath().pathString
     require_types(prim)
-    pos_attr, precision = data_attribute(prim, POSITIONS)
-    pos = read_array(pos_attr, tc)
+    pos_attr, pos = _data_array(prim, POSITIONS, tc)
+    precision = "half" if pos_attr is not None and pos_attr.GetName() != POSITIONS else "float"
     count = 0 if pos is None else len(pos)
     degree, _ = _degree(prim)
 
@@ -447,10 +449,15 @@ def describe_gaussian_prim(prim: Usd.Prim, time=None) -> GaussianPrimInfo:
             if name in (POSITIONS, ORIENTATIONS, SCALES) and attr.ValueMightBeTimeVarying():
                 animated = True
     for xf in _xform_chain(prim):
-        ts = xf.GetTimeSamples()
-        if ts:
-            samples.extend((ts[0], ts[-1]))
-        if xf.TransformMightBeTimeVarying():
+        key = xf.GetPath() if shared is not None and xf.GetPrim() != prim else None
+        got = shared.get(key) if key is not None else None
+        if got is None:
+            ts = xf.GetTimeSamples()
+            got = ((ts[0], ts[-1]) if ts else (), xf.TransformMightBeTimeVarying())
+            if key is not None:
+                shared[key] = got
+        samples.extend(got[0])
+        if got[1]:
             animated = True
     skinned = count > 0 and _skel.has_skel_binding(prim)
     if skinned:  # moving: the animation's samples count as the prim's
@@ -474,7 +481,10 @@ def describe_gaussian_prim(prim: Usd.Prim, time=None) -> GaussianPrimInfo:
         pad = np.maximum(np.maximum(p.min(axis=0) - local[0], local[1] - p.max(axis=0)), 0.0)
         bounds = _skel.skinned_bounds(prim, p, pad, tc)
     elif local is not None and count:
-        m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc))
+        if shared is not None:  # (ComputeLocalToWorldTransform fills a fresh XformCache: the same matrix)
+            m = np.array(shared.setdefault("xform cache", UsdGeom.XformCache(tc)).GetLocalToWorldTransform(prim))
+        else:
+            m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc))
         corners = np.array([[local[i, 0], local[j, 1], local[k, 2], 1.0]
                             for i in (0, 1) for j in (0, 1) for k in (0, 1)])
         w = corners @ m
