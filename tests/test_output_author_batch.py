@@ -75,6 +75,16 @@ def test_receivers_author_what_receiver_authors(precision, tol, aovs, k):
         assert [a2.is_clean(p) for p in paths] == [a1.is_clean(p) for p in paths]
     assert a2.samples_written == a1.samples_written > 0
     assert _layer_content(many) == _layer_content(one)
+    # prims without Gaussians only, and float64 SH (the row-by-row bit comparison does not apply)
+    empty = np.zeros((0, k, 3), np.float32)
+    assert a2.receivers(9, ["/W/B1"], [0, 0], np.ones(0, np.float32), empty, empty).tolist() == [False]
+    t, sh_out, sh_in = seq[2]
+    rows = np.arange(offsets[2], offsets[4])
+    f = a1.receivers(9, paths[2:4], offsets[2:5] - offsets[2], t[rows], sh_out[rows].astype(np.float64), sh_in[rows])
+    g = [a2.receiver(paths[i], 9, t[offsets[i]:offsets[i + 1]], sh_out[offsets[i]:offsets[i + 1]].astype(np.float64),
+                     sh_in[offsets[i]:offsets[i + 1]]) for i in (2, 3)]
+    assert f.tolist() == g
+    assert _layer_content(many) == _layer_content(one)
 
 
 def test_receivers_beyond_half_range_name_the_prim_and_element():

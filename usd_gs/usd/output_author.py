@@ -93,6 +93,19 @@ def _segment_all(flags: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> n
     return out
 
 
+def _changed_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """(M,) bool: the rows of ``a`` whose bits differ from ``b``'s (both (M, K, 3)); None unless
+    both are float32 and ``b`` is finite (a row equal to a NaN row still has a NaN difference)."""
+    if a.dtype != np.float32 or b.dtype != np.float32 or a.shape != b.shape or not np.isfinite(b).all():
+        return None
+    m = a.shape[0]
+    if not a.size:
+        return np.zeros(m, bool)
+    ua = np.ascontiguousarray(a).view(np.uint32).reshape(m, -1)
+    ub = np.ascontiguousarray(b).view(np.uint32).reshape(m, -1)
+    return (ua != ub).any(axis=1)
+
+
 def _to_half(value: np.ndarray, prim_path: str) -> np.ndarray:
     """``value`` as float16; ``UserError`` naming the prim and element where it overflows."""
     if not value.size or _within_half(value):  # fast path: two reductions, no temporaries
@@ -270,17 +283,38 @@ class OutputAuthor:
             return np.zeros(0, bool)
         m, k = sh_out.shape[0], sh_out.shape[1]
         counts = np.diff(offsets)
+        # the rows whose SH differ from the unaffected one, bit for bit (float32 and finite: the
+        # other rows change nothing, their display change is 0 and their half values are the same)
+        moved = _changed_rows(sh_out, sh_in)
         if self.sh_tolerance > 0.0:
-            hold = sh_display_changes(sh_out, sh_in, offsets) < self.sh_tolerance
+            if moved is None:
+                change = sh_display_changes(sh_out, sh_in, offsets)
+            else:  # only for the prims with a changed row
+                some = _segment_all(~moved, offsets[:-1], counts) == 0
+                change = np.zeros(len(paths))
+                if some.any():
+                    sel = np.repeat(some, counts)
+                    change[some] = sh_display_changes(sh_out[sel], sh_in[sel],
+                                                      np.concatenate([[0], np.cumsum(counts[some])]))
+            hold = change < self.sh_tolerance
             if hold.any():  # within the tolerance of the unaffected SH: written as unaffected
-                sh_out = np.where(np.repeat(hold, counts)[:, None, None], sh_in, sh_out)
+                rows_held = np.repeat(hold, counts)
+                sh_out = np.where(rows_held[:, None, None], sh_in, sh_out)
+                if moved is not None:
+                    moved = moved & ~rows_held
         half = self.precision == "half"
         shape = (m * k, 3)
         if half:
             if m and not (_within_half(sh_out) and _within_half(sh_in)):
                 return np.array([self.receiver(p, frame, transmittance[a:b], sh_out[a:b], sh_in[a:b])
                                  for p, a, b in zip(paths, offsets[:-1], offsets[1:], strict=True)], bool)
-            value, unaffected = sh_out.reshape(shape).astype(np.float16), sh_in.reshape(shape).astype(np.float16)
+            unaffected = sh_in.reshape(shape).astype(np.float16)
+            if moved is None:
+                value = sh_out.reshape(shape).astype(np.float16)
+            else:  # converted where the SH moved only
+                value = unaffected.copy().reshape(m, k, 3)
+                value[moved] = sh_out[moved].astype(np.float16)
+                value = value.reshape(shape)
         else:
             value, unaffected = sh_out.astype(np.float32).reshape(shape), sh_in.astype(np.float32).reshape(shape)
         changed = np.zeros(len(paths), bool)
