@@ -59,7 +59,7 @@ from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
 from usd_gs.io import envmap
 from usd_gs.io.gltf import load_skinned_mesh
 from usd_gs.pipeline.options import ProcessOptions
-from usd_gs.relight.colorspace import srgb_decode, srgb_encode
+from usd_gs.colorspace import srgb_decode, srgb_encode
 from usd_gs.relight.direct import cap_irradiance, self_shadow_samples
 from usd_gs.shadows.shot import Receivers, caster_transmittance, receiver_points, shared_transmittance
 from usd_gs.usd.lux import ShotLight

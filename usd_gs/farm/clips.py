@@ -156,6 +156,31 @@ def _relative(target: Path, out_dir: Path) -> str:
     return _relative_asset_path(Path(os.path.abspath(target)), out_dir)
 
 
+def _reanchor_assets(topo, layers, out_dir: Path) -> None:
+    """Relative asset paths that the stitching copied from a chunk layer into ``topo`` (static
+    values such as an estimated sky's ``inputs:texture:file``, relative to the chunk's folder)
+    rewritten relative to ``out_dir``, where the topology layer lives."""
+    specs = []
+
+    def visit(path):
+        if path.IsPropertyPath():
+            spec = topo.GetAttributeAtPath(path)
+            if spec and spec.typeName == Sdf.ValueTypeNames.Asset and spec.HasDefaultValue():
+                specs.append(spec)
+
+    topo.Traverse(Sdf.Path.absoluteRootPath, visit)
+    for spec in specs:
+        value = spec.default
+        if not value.path or os.path.isabs(value.path) or not value.path.startswith("."):
+            continue
+        for layer in layers:
+            src = layer.GetAttributeAtPath(spec.path) if layer else None
+            if src and src.HasDefaultValue() and src.default.path == value.path:
+                target = Sdf.ComputeAssetPathRelativeToLayer(layer, value.path)
+                spec.default = Sdf.AssetPath(_relative(Path(target), out_dir))
+                break
+
+
 def _topology(topo_path: Path, layer_paths: list[str], input_stage) -> None:
     """Write the topology layer (module docstring) atomically."""
 
@@ -166,6 +191,7 @@ def _topology(topo_path: Path, layer_paths: list[str], input_stage) -> None:
         if not UsdUtils.StitchClipsTopology(topo, layer_paths):
             raise UserError(f"{topo_path}: USD could not stitch the chunk topology")
         topo.subLayerPaths.clear()  # the chunks' input sublayer; the root sublayers the input itself
+        _reanchor_assets(topo, [Sdf.Layer.FindOrOpen(p) for p in layer_paths], topo_path.parent)
         with Sdf.ChangeBlock():
             for prim in input_stage.Traverse():
                 spec = topo.GetPrimAtPath(prim.GetPath())

@@ -142,7 +142,12 @@ def _open_lights(proc, scene, centroid, hint, decision, up_axis) -> CaptureLight
         else:
             out.sky = se.SkyEstimate(np.ones(3), sun.sky.ground, up_axis)  # all the light from the sky
             out.lines.append("sun: none (overcast or no consistent shadow): the sky alone lights the shot")
-    out.lights.append(sky_light(out.sky, up_axis))
+    sky = sky_light(out.sky, up_axis)
+    if out.sun is not None and out.sun.confident:
+        sky.sky_occlusion = (float(out.sun.direct_share), float(out.sun.sky_visibility), float(out.sun.lit_luminance))
+    else:  # the sky alone: every receiver's light is sky
+        sky.sky_occlusion = (0.0, 1.0, float(se.LUMA @ np.asarray(out.sky.ground, np.float64)))
+    out.lights.append(sky)
     return out
 
 
@@ -288,6 +293,31 @@ def direct_fraction(proc, lights) -> float:
     return f
 
 
+def sky_occlusion_params(proc, lights) -> tuple[float, float, float] | None:
+    """``(D, V, L)`` of the sky the moving casters hide from the static receivers around them
+    (``usd_gs.shadows.sky_occlusion.sky_factor``), or None when the shot's lights hold no dome
+    (closed captures, authored lights without a DomeLight: the sky is no light of the shot).
+    A dome's own ``sky_occlusion`` (an estimated sky) or ``customData`` ``usdgs:skyOcclusion``
+    (what ``usdgs lights`` writes) first; else, for authored lights, ``D`` = the DistantLights'
+    share of a horizontal receiver's irradiance against the domes' (from the intensities),
+    ``V = 1`` and ``L = 0.18`` (a mid-grey receiver)."""
+    domes = [lt for lt in lights if lt.kind == "dome"]
+    if not domes:
+        return None
+    for d in domes:
+        got = getattr(d, "sky_occlusion", None)
+        if got is None and d.source != "estimated":
+            prim = proc.stage.GetPrimAtPath(d.source)
+            v = prim.GetCustomDataByKey("usdgs:skyOcclusion") if prim else None
+            got = tuple(float(x) for x in v) if v is not None and len(v) == 3 else None
+        if got is not None:
+            return tuple(float(x) for x in got)
+    up = se.up_vector(proc.dgsm.up_axis)
+    e_dome = sum(_horizontal_irradiance(d, up) for d in domes)
+    e_dir = sum(_horizontal_irradiance(lt, up) for lt in lights if lt.kind == "directional")
+    return (e_dir / (e_dir + e_dome) if e_dir + e_dome > 0 else 0.0, 1.0, 0.18)
+
+
 def lights_evidence(cap: CaptureLights) -> dict:
     """``{light name: {key: value}}`` for :func:`usd_gs.usd.lux.write_capture_lights`."""
     ev = {}
@@ -344,5 +374,7 @@ def write_lights(proc, stage, lights, texture_path, texture_ref: str) -> int:
     for lt in lights:
         if getattr(lt, "direct_share", None) is not None:
             evidence.setdefault(lt.name, {})["directShare"] = float(lt.direct_share)
+        if getattr(lt, "sky_occlusion", None) is not None:
+            evidence.setdefault(lt.name, {})["skyOcclusion"] = np.asarray(lt.sky_occlusion, np.float64)
     write_capture_lights(stage, lights, evidence, textures, up_axis=proc.dgsm.up_axis)
     return n

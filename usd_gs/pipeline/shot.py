@@ -37,7 +37,7 @@ from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
 from usd_gs.pipeline import jit_warmup
-from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, write_lights
+from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, sky_occlusion_params, write_lights
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.appearance import read_appearance
@@ -59,6 +59,7 @@ from usd_gs.shadows.shot import (
     shared_transmittance,
     toward_mask,
 )
+from usd_gs.shadows.sky_occlusion import receiver_normals, static_sky_factors
 from usd_gs.shadows.static_scene import StaticSceneAtlas
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
@@ -117,6 +118,9 @@ class FrameShadows:
     t_touched: np.ndarray
     t_dyn: np.ndarray
     t_dyn_lights: list | None = None  # per shadow light: (N_moving,) transmittance (relighting's visibility)
+    # the sky the moving casters hide from the touched static receivers: (len(touched),) colour
+    # factor (usd_gs.shadows.sky_occlusion), None when the shot's lights hold no sky
+    sky_touched: np.ndarray | None = None
 
 
 @dataclass
@@ -156,6 +160,7 @@ class ShotProcessor:
         self._probe_blends: dict = {}
         self._local_sh_cache: dict = {}
         self._self_samples: dict = {}  # relit prim -> its self-shadow sample map (_self_sample_map)
+        self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
         self._calib_centre = None  # where estimated lights are calibrated (_calibration_centre)
         # what the run did
@@ -319,8 +324,33 @@ class ShotProcessor:
             t_static_u = combine_lights(per, light_shares(lights, srecv.gaussians.positions[u]))
         t_dyn = (combine_lights(d_light, light_shares(lights, drecv.gaussians.positions)) if lights
                  else np.ones(drecv.gaussians.count, np.float32))
+        u, t_static_u, sky_u = self._sky_hidden(sets, u, t_static_u)
         clk.add("shadows", t)
-        return FrameShadows(drecv, u, t_static_u, t_dyn, d_light)
+        return FrameShadows(drecv, u, t_static_u, t_dyn, d_light, sky_u)
+
+    def _sky_hidden(self, sets: dict, u: np.ndarray, t_u: np.ndarray):
+        """The sky the moving casters hide from the static receivers around them
+        (``usd_gs.shadows.sky_occlusion``) when the shot's lights hold a sky: ``(touched, their
+        transmittance, their sky factor or None)``, the touched set widened by the receivers
+        the sky part alone darkens (transmittance 1)."""
+        params = sky_occlusion_params(self, self.lights_used or [])
+        if params is None or not self._casters_dyn or not self._static_recv.gaussians.count:
+            return u, t_u, None
+        up = np.zeros(3)
+        up[1 if self.dgsm.up_axis == "Y" else 2] = 1.0
+        if self._static_normals is None:  # once per shot: the static receivers do not move
+            g = self._static_recv.gaussians
+            self._static_normals = receiver_normals(g, np.arange(g.count))
+        idx, k = static_sky_factors([sets[q] for q in self._casters_dyn], self._static_recv, self._spheres, up,
+                                    params, self.opts.sh_tolerance, sun_t=(u, t_u), normals=self._static_normals)
+        if idx.size == 0:
+            return u, t_u, np.ones(u.size, np.float32)
+        both = np.union1d(u, idx)
+        t2 = np.ones(both.size, np.float32)
+        t2[np.searchsorted(both, u)] = t_u
+        k2 = np.ones(both.size, np.float32)
+        k2[np.searchsorted(both, idx)] = k
+        return both, t2, k2
 
     def _moving_caster_shadows(self, light, sets: dict, drecv: Receivers, movers: _MovingCasters):
         """One light: every moving caster's DGSM sampled on the static receivers in its beam and
@@ -569,6 +599,7 @@ class ShotProcessor:
         prim-local SH that the attribute holds (the world-space SH are rotated)."""
         srecv, drecv = self._static_recv, shadows.drecv
         u, t_static_u, t_dyn = shadows.touched, shadows.t_touched, shadows.t_dyn
+        sky_u = shadows.sky_touched if shadows.sky_touched is not None else np.ones(u.size, np.float32)
         affected = []
         f = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
         paths = self._static_recv_paths
@@ -590,7 +621,7 @@ class ShotProcessor:
             touched = np.zeros(len(paths), bool)
             touched[owner] = True
             shadowed = np.zeros(len(paths), bool)
-            shadowed[owner[t_static_u < 1]] = True  # the prims whose SH is attenuated
+            shadowed[owner[(t_static_u < 1) | (sky_u < 1)]] = True  # the prims whose SH is attenuated
             cand = np.flatnonzero([touched[k] or not author.is_clean(p) for k, p in enumerate(paths)])
             counts = offsets[cand + 1] - offsets[cand]
             sub = np.concatenate([[0], np.cumsum(counts)])
@@ -598,12 +629,15 @@ class ShotProcessor:
             tp = np.ones(offsets[-1], np.float32)
             tp[u] = t_static_u
             tp = tp[rows]
+            ks = np.ones(offsets[-1], np.float32)
+            ks[u] = sky_u
+            ks = ks[rows]
             sh_in = sh_block[rows]
             sh_out = sh_in
             lit = np.repeat(shadowed[cand], counts)
             if lit.any():
                 sh_out = sh_in.copy()
-                sh_out[lit] = scale_sh(sh_in[lit], attenuation_factor(tp[lit], f))
+                sh_out[lit] = scale_sh(sh_in[lit], attenuation_factor(tp[lit], f) * ks[lit][:, None])
             done = author.receivers(frame, [paths[k] for k in cand], sub, tp, sh_out, sh_in)
             affected += [paths[k] for k, d in zip(cand, done, strict=True) if d]
         else:
@@ -615,8 +649,11 @@ class ShotProcessor:
             a, b = srecv.ranges[p]
             tp = np.ones(b - a, np.float32)
             tp[u[sel] - a] = t_static_u[sel]
+            kp = np.ones(b - a, np.float32)
+            kp[u[sel] - a] = sky_u[sel]
             sh_in = self._local_sh(p, frame, sets[p])
-            sh_out = scale_sh(sh_in, attenuation_factor(tp, f)) if (tp < 1).any() else sh_in
+            shaded = (tp < 1).any() or (kp < 1).any()
+            sh_out = scale_sh(sh_in, attenuation_factor(tp, f) * kp[:, None]) if shaded else sh_in
             if author.receiver(p, frame, tp, sh_out, sh_in):
                 affected.append(p)
         for p in self._dyn_recv_paths:

@@ -13,7 +13,7 @@ Irradiance at Gaussian i (position x_i, unit outward normal n_i), per channel, l
   Gaussians that make up a modelled light: the caller's ``mask``, no double counting), at the
   prim's alpha-weighted centroid ``c`` and, with ``probe_points`` > 1, at parallax-corrected probe
   points (``usd_gs.relight.parallax``). The render is decoded to linear radiance first
-  (``usd_gs.relight.colorspace``: texels un-premultiplied, decoded, re-premultiplied).
+  (``usd_gs.colorspace``: texels un-premultiplied, decoded, re-premultiplied).
 - **Unobserved directions** (texel coverage alpha < :data:`OBSERVED_ALPHA`) are filled, never
   black: a texel's unobserved share ``u = clip((OBSERVED_ALPHA - alpha) / OBSERVED_ALPHA, 0, 1)``
   (1 where nothing was drawn, 0 from ``OBSERVED_ALPHA`` up: a surface's own coverage deficit,
@@ -38,7 +38,7 @@ is relit as ``gamma albedo E / pi``; one with RGCA ZH appearance (``appearance['
 under the probe plus each light as a delta of radiance ``E_l V_l`` from its direction (from ``c``).
 Colours are decoded with ``opts.color_space`` ('srgb' default, 'linear') and re-encoded; the
 result is returned as a per-channel factor on the prim's displayed DC colour
-(``usd_gs.relight.colorspace.display_factor``), which the main job multiplies into every SH band.
+(``usd_gs.colorspace.display_factor``), which the main job multiplies into every SH band.
 
 Both ``ShotProcessor`` and the ground truths (``usd_gs.evaluation.relight_groundtruth``,
 ``usd_gs.evaluation.outdoor_groundtruth``) call :func:`relight_factors`, so the measured accuracy
@@ -54,7 +54,7 @@ from numba_kernels.sh_real import eval_basis_rh_numpy
 from numba_kernels.zh_transfer import zh_diffuse_color
 from usd_gs import sh3dgs
 from usd_gs.io import envmap
-from usd_gs.relight.colorspace import display_factor, from_linear, to_linear
+from usd_gs.colorspace import display_factor, from_linear, to_linear
 from usd_gs.relight.direct import direct_factors, direct_irradiance, light_direction
 from usd_gs.relight.parallax import cube_texels, reprojected_probes
 from usd_gs.relight.probe import PROBE_DILATION, SHProbe, fit_probe, render_probe_faces

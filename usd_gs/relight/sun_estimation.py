@@ -451,7 +451,9 @@ class SunEstimate:
     (``reasons`` lists those it failed); irradiance: (3,) E_sun at normal incidence, linear
     RGB; sky: :class:`SkyEstimate`; ratio: lum(E_sun) / lum(E_sky); ratio_cos: Rc (luminance);
     direct_share: Rc / (V_lit + Rc); n_lit, n_shadow: receivers in each set; shading_direction
-    and shading_angle_deg: the band-1 check; evidence: a flat dict for customData and summaries.
+    and shading_angle_deg: the band-1 check; sky_visibility: V_lit, the lit receivers' median sky
+    visibility; lit_luminance: their median linear luminance; evidence: a flat dict for customData
+    and summaries.
     """
 
     direction: np.ndarray
@@ -473,6 +475,8 @@ class SunEstimate:
     timings: dict = field(default_factory=dict)
     ground_height: float | None = None
     darkening: float = 0.0
+    sky_visibility: float = 1.0
+    lit_luminance: float = 0.5
 
     @property
     def propagation(self) -> np.ndarray:
@@ -485,6 +489,8 @@ class SunEstimate:
                 "lit_over_shadow_minus_1": round(float(self.ratio_cos), 4),
                 "direct_share": round(float(self.direct_share), 4),
                 "display_darkening": round(float(self.darkening), 4), "lit_receivers": int(self.n_lit),
+                "lit_sky_visibility": round(float(self.sky_visibility), 4),
+                "lit_luminance": round(float(self.lit_luminance), 4),
                 "shadow_receivers": int(self.n_shadow), "receivers": int(self.n_receivers),
                 "shading_angle_deg": None if self.shading_angle_deg is None else round(self.shading_angle_deg, 2),
                 "failed": "; ".join(self.reasons)}
@@ -665,7 +671,8 @@ def _sun_and_sky(s, score, t, V, lin, up, up_axis, cfg, pts=None) -> SunEstimate
     disp_sh = float(LUMA @ srgb_to_display(yl_lin * (1.0 - share_c)))
     darkening = 1.0 - disp_sh / disp_lit if disp_lit > 0 else 0.0
     return SunEstimate(np.asarray(s, np.float64), float(score), not reasons, e_sun, sky, ratio, rc_l, float(share),
-                       int(lit.sum()), int(sh.sum()), 0, None, None, el, az, reasons, darkening=float(darkening))
+                       int(lit.sum()), int(sh.sum()), 0, None, None, el, az, reasons, darkening=float(darkening),
+                       sky_visibility=float(vl), lit_luminance=float(LUMA @ yl_lin))
 
 
 def overcast_sky(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit: float = 1.0,

@@ -95,6 +95,10 @@ class ShotLight:
     env: np.ndarray | None = None  # dome: (h, w, 3) linear lat-long texture, None = uniform
     texture: str = ""  # dome: resolved path of inputs:texture:file ('' = none)
     direct_share: float | None = None  # measured darkening of its full shadow (customData usdgs:directShare)
+    # dome: (D, V, L) of the sky the moving casters hide (customData usdgs:skyOcclusion;
+    # usd_gs.shadows.sky_occlusion): the sun's linear share of a lit receiver's light, a lit
+    # receiver's sky visibility, the lit receivers' linear luminance
+    sky_occlusion: tuple | None = None
 
     @property
     def luminous_weight(self) -> float:

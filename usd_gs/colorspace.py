@@ -1,4 +1,4 @@
-"""sRGB transfer function for the relighting (shared/DESIGN.md section 4).
+"""sRGB transfer function of the colour maths (shared/DESIGN.md section 4): relighting and shadows.
 
 3DGS colours (``0.5 + SH(dir)``) are display-referred, sRGB-encoded values; light is summed and
 divided on linear values. :func:`srgb_decode` / :func:`srgb_encode` are the IEC 61966-2-1
