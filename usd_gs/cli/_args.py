@@ -58,4 +58,5 @@ def print_lights(lights) -> None:
                  else "environment" if lt.kind == "dome"
                  else f"along ({lt.direction[0]:.2f}, {lt.direction[1]:.2f}, {lt.direction[2]:.2f})")
         score = "" if lt.score is None else f", score {lt.score:.3g}"
-        print(f"  {lt.name}: {lt.kind} {where}, intensity {lt.intensity:.3g}{score} [{lt.source}]")
+        kind = f"rect {lt.width:.2f} x {lt.height:.2f}" if lt.form == "rect" else lt.kind
+        print(f"  {lt.name}: {kind} {where}, intensity {lt.intensity:.3g}{score} [{lt.source}]")

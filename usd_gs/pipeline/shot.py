@@ -537,7 +537,8 @@ class ShotProcessor:
         return app
 
     def _calibrated(self, lights, everything, spans, centre) -> list:
-        """The lights for the relighting: estimated point lights get the radiant intensity that their
+        """The lights for the relighting: estimated point lights (not the estimated RectLights, whose
+        radiance is their Gaussians' own, relit as area lights) get the radiant intensity that their
         emitter Gaussians show at one point of the shot (a render of those Gaussians alone: ``sum``
         of linear radiance x solid angle, times the squared distance), once per shot and light; the
         stage's lights are used as authored. The point is the first relit prim's centroid at the
@@ -546,8 +547,8 @@ class ShotProcessor:
 
         out = []
         for lt in lights:
-            if lt.source != "estimated" or lt.kind != "point":
-                out.append(lt)
+            if lt.source != "estimated" or lt.kind != "point" or lt.form == "rect":
+                out.append(lt)  # (an estimated RectLight carries the radiance its Gaussians show)
                 continue
             key = ("calibrated", tuple(np.round(lt.position, 6)))
             if key not in self._scene_packs:
