@@ -45,10 +45,10 @@ def splat_transform() -> str | None:
     return None
 
 
-def run(cmd: list[str]) -> tuple[float, float, float]:
+def run(cmd: list[str], cwd: str | None = None) -> tuple[float, float, float]:
     """(wall s, peak RSS MB, CPU s = user + system) of one child process; raises on failure."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=cwd)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     err = proc.stderr.read().decode(errors="replace")
@@ -135,13 +135,14 @@ def main() -> int:
         base_cmd = None
         if args.baseline:
             base = Path(args.baseline).resolve()
+            # run in that checkout (python -m puts the working directory first on sys.path)
             base_cmd = ["env", f"PYTHONPATH={base}", sys.executable, "-m", "usd_gs.cli", "import", str(lod),
                         "--lod", "0", "-o", str(tmp / "flowers_baseline.usdc"), "-q"]
         cmds = {"ours": ours_cmd, "splat_transform": ref_cmd, "baseline": base_cmd}
         runs: dict[str, list] = {k: [] for k, c in cmds.items() if c}
         for _ in range(args.repeat):
             for k in runs:
-                runs[k].append(run(cmds[k]))
+                runs[k].append(run(cmds[k], cwd=str(base) if k == "baseline" else None))
         res = {k: summary(v) for k, v in runs.items()}
         names = {"ours": "flowers_import", "splat_transform": "splat_transform", "baseline": "baseline_import"}
         for k, r in res.items():

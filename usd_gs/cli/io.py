@@ -60,9 +60,7 @@ def _import_sequence(args, stage, path) -> str:
 
 
 class _Background:
-    """Run ``fn(*args)`` in a daemon thread; :meth:`result` joins and returns or re-raises.
-
-    ``usdgs import`` decodes the capture (numpy and Pillow release the GIL) while pxr loads."""
+    """Run ``fn(*args)`` in a daemon thread; :meth:`result` joins and returns or re-raises."""
 
     def __init__(self, fn, *args):
         import threading
@@ -86,9 +84,46 @@ class _Background:
         return self._out
 
 
+def _start_sog_decode(path: str, lod: int | None):
+    """For a SOG input: its manifests read here, then its images decoded in a background thread
+    (libwebp and numpy release the GIL) into the Vt arrays that will be written, while this
+    thread imports the rest of pxr. Returns the :class:`_Background` reader, or None for other
+    formats (read after the imports).
+
+    pxr's imports must not overlap with another thread's calls into pxr (seen: 'cannot import
+    name TimeCodeArray from pxr.Vt'), and the garbage collector must not run pxr destructors in
+    the reader meanwhile: so pxr.Vt is imported and the output arrays are allocated here, the
+    modules the decode uses are loaded here, and the collector is off until :func:`_join`."""
+    from usd_gs.io.formats import capture_kind
+
+    if capture_kind(path) != "sog":
+        return None
+    import gc
+
+    from usd_gs.io.sog import load_webp_codec, open_sog
+    from usd_gs.usd.bulk import VtBackedPool
+
+    opened = open_sog(path, lod)
+    load_webp_codec()
+    n, k = opened.count, (opened.sh_degree + 1) ** 2
+    pool = VtBackedPool([(n, 3), (n, 3), (n, 3), (n,), (n, k, 3)])
+    gc.disable()
+    return _Background(opened.decode, None, pool)
+
+
+def _join(reader):
+    """The reader's :class:`GaussianSet`; the garbage collector back on."""
+    import gc
+
+    try:
+        return reader.result()
+    finally:
+        gc.enable()
+
+
 def cmd_import(args) -> int:
     from usd_gs.io.sequence import is_pattern
-    from usd_gs.usd.stage import check_usd_output_path
+    from usd_gs.usd.stage import check_usd_output_path, prim_path
 
     check_usd_output_path(args.output)
     if os.path.abspath(args.output) == os.path.abspath(args.input):
@@ -98,20 +133,17 @@ def cmd_import(args) -> int:
     sequence = is_pattern(args.input)
     if args.frames and not sequence:
         raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
-    if sequence:
-        reader = None
-    else:  # a SOG decodes straight into the Vt arrays that are written (usd_gs.usd.bulk)
+    reader = None if sequence else _start_sog_decode(args.input, args.lod)
+    try:
+        path = prim_path(args.prim or default_prim_path(args.input))
         from usd_gs.usd.bulk import vt_backed_empty
+        from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+        from usd_gs.usd.schema import apply_role
 
-        reader = _Background(read_gaussian_file, args.input, args.lod, vt_backed_empty)
-
-    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-    from usd_gs.usd.schema import apply_role
-    from usd_gs.usd.stage import prim_path
-
-    path = prim_path(args.prim or default_prim_path(args.input))
-    root = path.GetPrefixes()[0]
-    stage = new_stage(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
+        root = path.GetPrefixes()[0]
+        stage = new_stage(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
+    finally:
+        gaussians = None if reader is None else _join(reader)
     if sequence:
         what = _import_sequence(args, stage, path)
         save_stage_atomic(stage, args.output)
@@ -119,8 +151,10 @@ def cmd_import(args) -> int:
             print(f"wrote {args.output}: {what}")
         return 0
     # The readers reject NaN/Inf, zero quaternions and out-of-range values naming the
-    # field and element, so no second validation pass is needed here.
-    gaussians = reader.result()
+    # field and element, so no second validation pass is needed here. A SOG decodes straight
+    # into the Vt arrays that are written (usd_gs.usd.bulk.vt_backed_empty).
+    if gaussians is None:
+        gaussians = read_gaussian_file(args.input, args.lod, vt_backed_empty)
     bricks = ""
     if args.brick_size is not None:
         from usd_gs.usd.bricks import write_bricked

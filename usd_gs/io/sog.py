@@ -395,8 +395,44 @@ def _lod_files(label: str, meta) -> tuple[int, dict[int, dict[int, int]], list[s
     return levels, out, names
 
 
+class OpenedSog:
+    """A SOG capture whose ``meta.json`` files are read and checked (:func:`open_sog`);
+    :meth:`decode` reads and decodes the images. ``count`` Gaussians of SH degree ``sh_degree``."""
+
+    def __init__(self, label: str, plans: list, raws: list | None = None):
+        self.label = label
+        self._plans = plans
+        self._raws = raws  # the images' bytes, already read (a zip archive is closed by now)
+        self.count = int(sum(pl.count for pl in plans))
+        self.sh_degree = max(pl.bands for pl in plans)
+
+    def decode(self, threads: int | None = None, empty=None) -> GaussianSet:
+        """The :class:`GaussianSet` (``threads``, ``empty``: see :func:`read_sog`). Uses numpy,
+        ctypes and, for images libwebp does not take, Pillow; nothing else is imported here."""
+        plans, raws = self._plans, self._raws
+        starts = np.concatenate([[0], np.cumsum([pl.count for pl in plans])]).astype(int)
+        out = _alloc(self.count, self.sh_degree, empty)
+        workers = threads or min(len(plans), os.cpu_count() or 1)
+
+        def run(i):
+            _decode(plans[i], raws[i] if raws is not None else plans[i].load(), out, int(starts[i]))
+
+        if workers > 1 and len(plans) > 1:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                list(pool.map(run, range(len(plans))))
+        else:
+            for i in range(len(plans)):
+                run(i)
+        return _to_set(out, self.label)
+
+
 def read_lod_set(path, lod: int | None = None, threads: int | None = None, empty=None) -> GaussianSet:
-    """Read one level of a SOG LOD set (``lod-meta.json``; module docstring).
+    """Read one level of a SOG LOD set (``lod-meta.json``; module docstring; :func:`open_lod_set`)."""
+    return open_lod_set(path, lod).decode(threads, empty)
+
+
+def open_lod_set(path, lod: int | None = None) -> OpenedSog:
+    """One level of a SOG LOD set (``lod-meta.json``), its manifests read, ready to decode.
 
     ``lod`` None picks the finest level (lowest number) whose chunk files are all present.
     Raises :class:`InputFormatError` for a bad manifest, a level that does not exist, a level
@@ -440,20 +476,7 @@ def read_lod_set(path, lod: int | None = None, threads: int | None = None, empty
             raise InputFormatError(f"{meta_path}: meta.json 'count' is {plan.count} but {label} references "
                                    f"{count} Gaussians in it for LOD {lod}")
         plans.append(plan)
-    starts = np.concatenate([[0], np.cumsum([pl.count for pl in plans])]).astype(int)
-    out = _alloc(int(starts[-1]), max(pl.bands for pl in plans), empty)
-    workers = threads or min(len(plans), os.cpu_count() or 1)
-
-    def run(i):
-        _decode(plans[i], plans[i].load(), out, int(starts[i]))
-
-    if workers > 1 and len(plans) > 1:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(run, range(len(plans))))
-    else:
-        for i in range(len(plans)):
-            run(i)
-    return _to_set(out, label)
+    return OpenedSog(label, plans)
 
 
 # ---------------------------------------------------------------------------------- public
@@ -472,6 +495,13 @@ def read_sog(path, lod: int | None = None, threads: int | None = None, empty=Non
     allocates the decoded positions, scales, log-scales, opacities and SH (``usdgs import``
     passes one whose arrays are USD's own storage; default numpy's).
     """
+    return open_sog(path, lod).decode(threads, empty)
+
+
+def open_sog(path, lod: int | None = None) -> OpenedSog:
+    """The first half of :func:`read_sog`: the manifests read and checked (and a bundled
+    ``.sog``'s members read), so ``count`` and ``sh_degree`` are known before the images are
+    decoded by :meth:`OpenedSog.decode`. Raises what :func:`read_sog` raises for the manifests."""
     p = Path(path)
     label = str(path)
     if p.is_dir():
@@ -484,14 +514,11 @@ def read_sog(path, lod: int | None = None, threads: int | None = None, empty=Non
     if not p.exists():
         raise InputFormatError(f"{label}: no such file")
     if p.name == "lod-meta.json":
-        return read_lod_set(p, lod, threads, empty)
+        return open_lod_set(p, lod)
     if lod not in (None, 0):
         raise InputFormatError(f"{label}: --lod {lod} given but this SOG has a single level (no lod-meta.json)")
     if p.suffix.lower() == ".json":
-        plan = _Plan(_Source(str(p), folder=p.parent))
-        out = _alloc(plan.count, plan.bands, empty)
-        _decode(plan, plan.load(), out)
-        return _to_set(out, label)
+        return OpenedSog(label, [_Plan(_Source(str(p), folder=p.parent))])
     with _open_zip(label, p) as zf:
         try:
             names = zf.namelist()
@@ -503,9 +530,14 @@ def read_sog(path, lod: int | None = None, threads: int | None = None, empty=Non
         prefix = str(PurePosixPath(min(metas, key=len)).parent)
         plan = _Plan(_Source(label, archive=zf, prefix="" if prefix == "." else prefix))
         raw = plan.load()
-    out = _alloc(plan.count, plan.bands, empty)
-    _decode(plan, raw, out)
-    return _to_set(out, label)
+    return OpenedSog(label, [plan], [raw])
+
+
+def load_webp_codec() -> bool:
+    """Find and load libwebp now (:func:`_libwebp`; otherwise done on the first image); True
+    when found. ``usdgs import`` calls it before it decodes in a thread, so that thread
+    loads nothing."""
+    return _libwebp() is not None
 
 
 # ---------------------------------------------------------------------------------- writing

@@ -143,3 +143,19 @@ def gaussian_extent(g, n_sigma: float = 3.0) -> np.ndarray:
         return sub.extent(n_sigma)
     except GaussianDataError:
         return g.extent(n_sigma)
+
+
+class VtBackedPool:
+    """:func:`vt_backed_empty` arrays allocated now, in the calling thread, for ``shapes``;
+    calling the pool with a shape hands out the next one of that shape (``np.zeros`` once they
+    are used up), without calling USD. For a reader running in another thread while this one
+    imports pxr modules (which must not run in two threads at once)."""
+
+    def __init__(self, shapes):
+        self._free: dict[tuple, list[np.ndarray]] = {}
+        for shape in shapes:
+            self._free.setdefault(tuple(int(d) for d in shape), []).append(vt_backed_empty(shape))
+
+    def __call__(self, shape) -> np.ndarray:
+        free = self._free.get(tuple(int(d) for d in shape))
+        return free.pop(0) if free else np.zeros(shape, np.float32)
