@@ -677,7 +677,8 @@ class ShotProcessor:
 
     def _local_sh(self, path: str, frame: float, g):
         """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at
-        ``frame``: ``g.sh`` (world space) when the prim's world transform has no rotation, else
+        ``frame``: ``g.sh`` (world space) when the prim's world transform has no rotation or its SH
+        have degree 0 (no band to rotate), else
         read unrotated (once per shot for static prims). A skinned prim's attribute holds the bind
         pose: its bind-pose SH (once per shot; the results are per-Gaussian colour factors, which
         commute with the skinning's band rotations)."""
@@ -689,6 +690,8 @@ class ShotProcessor:
         tc = Usd.TimeCode.EarliestTime() if static else Usd.TimeCode(frame)
         if skinned:
             sh = read_gaussian_prim(prim, tc, world=False, skin=False, check_types=False).sh
+        elif g.sh.shape[1] == 1:  # degree 0: the world transform leaves the SH as authored (GaussianSet.transformed)
+            sh = g.sh
         else:
             m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc).ExtractRotationMatrix())
             plain = self.__dict__.setdefault("_no_rotation", {})  # rotation matrix bytes -> no rotation?
