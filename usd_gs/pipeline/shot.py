@@ -784,7 +784,12 @@ class ShotProcessor:
         local, first = self._prim_local_normals(path, g, frame)
         blend = self._probe_blends.get(path)
         if blend is None or blend.labels.shape[0] != g.count:
-            rest = first if first is not None and first.count == g.count else g
+            rest = g
+            if blend is None and self.anchor_frame is not None and self.anchor_frame != frame:
+                # a chunk: the probe clusters of the whole-shot run, from the shot's first frame (the
+                # normals may have been estimated there already by the shadow pass: read it again)
+                first = first if first is not None else self._read(path, self.anchor_frame)
+                rest = first if first.count == g.count else g
             blend = ProbeBlend.build(rest.positions, self.opts.probe_points)
             self._probe_blends[path] = blend
         normals = local_normals_to_world(g.orientations, local)
