@@ -92,12 +92,14 @@ def _start_sog_decode(path: str, lod: int | None):
 
     pxr's imports must not overlap with another thread's calls into pxr (seen: 'cannot import
     name TimeCodeArray from pxr.Vt'), and the garbage collector must not run pxr destructors in
-    the reader meanwhile: so pxr.Vt is imported and the output arrays are allocated here, the
-    modules the decode uses are loaded here, and the collector is off until :func:`_join`."""
+    the reader meanwhile: so pxr.Vt is imported and the output arrays are allocated here (the
+    reader waits for them after its first images), the modules the decode uses are loaded
+    before it starts, and the collector is off until :func:`_join`."""
     from usd_gs.io.formats import capture_kind
 
     if capture_kind(path) != "sog":
         return None
+    import contextlib
     import gc
 
     from usd_gs.io.sog import load_webp_codec, open_sog
@@ -106,9 +108,16 @@ def _start_sog_decode(path: str, lod: int | None):
     opened = open_sog(path, lod)
     load_webp_codec()
     n, k = opened.count, (opened.sh_degree + 1) ** 2
-    pool = VtBackedPool([(n, 3), (n, 3), (n, 3), (n,), (n, k, 3)])
+    pool = VtBackedPool()
     gc.disable()
-    return _Background(opened.decode, None, pool)
+    reader = _Background(opened.decode, None, pool)  # decodes the first images while the pool fills
+    try:
+        pool.fill([(n, 3), (n, 3), (n, 3), (n,), (n, k, 3)])
+    except BaseException:
+        with contextlib.suppress(BaseException):
+            _join(reader)  # (the collector back on)
+        raise
+    return reader
 
 
 def _join(reader):

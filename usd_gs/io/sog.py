@@ -281,12 +281,16 @@ def _to_set(out: dict, label: str) -> GaussianSet:
                        out["sh"], log_scales=out["log_scales"], label=label)
 
 
-def _decode(plan: _Plan, raw: dict, out: dict, start: int = 0) -> None:
-    """Decode one SOG unit into rows ``start:start+count`` of the arrays in ``out``."""
+def _images(plan: _Plan, raw: dict) -> dict:
+    """The decoded WebP images of one SOG unit: key -> (pixels, width, height)."""
+    jobs = plan.jobs
+    return {key: _decode_webp(plan.label, jobs[key][0], raw[key], jobs[key][1]) for key in jobs}
+
+
+def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
+    """Decode one SOG unit's images (:func:`_images`) into rows ``start:start+count`` of ``out``."""
     label = plan.label
     n = plan.count
-    jobs = plan.jobs
-    imgs = {key: _decode_webp(label, jobs[key][0], raw[key], jobs[key][1]) for key in jobs}
     mins, maxs, qfile, bands = plan.mins, plan.maxs, plan.qfile, plan.bands
     sl = slice(start, start + n)
     rng = maxs - mins
@@ -409,13 +413,20 @@ class OpenedSog:
     def decode(self, threads: int | None = None, empty=None) -> GaussianSet:
         """The :class:`GaussianSet` (``threads``, ``empty``: see :func:`read_sog`). Uses numpy,
         ctypes and, for images libwebp does not take, Pillow; nothing else is imported here."""
+        import threading
+
         plans, raws = self._plans, self._raws
         starts = np.concatenate([[0], np.cumsum([pl.count for pl in plans])]).astype(int)
-        out = _alloc(self.count, self.sh_degree, empty)
         workers = threads or min(len(plans), os.cpu_count() or 1)
+        out: list[dict] = []  # allocated once, when the first unit's images are decoded
+        lock = threading.Lock()
 
         def run(i):
-            _decode(plans[i], raws[i] if raws is not None else plans[i].load(), out, int(starts[i]))
+            imgs = _images(plans[i], raws[i] if raws is not None else plans[i].load())
+            with lock:
+                if not out:
+                    out.append(_alloc(self.count, self.sh_degree, empty))
+            _decode(plans[i], imgs, out[0], int(starts[i]))
 
         if workers > 1 and len(plans) > 1:
             with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -423,7 +434,9 @@ class OpenedSog:
         else:
             for i in range(len(plans)):
                 run(i)
-        return _to_set(out, self.label)
+        if not out:  # no unit
+            out.append(_alloc(self.count, self.sh_degree, empty))
+        return _to_set(out[0], self.label)
 
 
 def read_lod_set(path, lod: int | None = None, threads: int | None = None, empty=None) -> GaussianSet:

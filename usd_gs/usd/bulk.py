@@ -146,16 +146,30 @@ def gaussian_extent(g, n_sigma: float = 3.0) -> np.ndarray:
 
 
 class VtBackedPool:
-    """:func:`vt_backed_empty` arrays allocated now, in the calling thread, for ``shapes``;
-    calling the pool with a shape hands out the next one of that shape (``np.zeros`` once they
-    are used up), without calling USD. For a reader running in another thread while this one
-    imports pxr modules (which must not run in two threads at once)."""
+    """:func:`vt_backed_empty` arrays allocated by :meth:`fill` in the calling thread, handed out
+    by calling the pool with a shape (the next array of that shape; ``np.zeros`` once they are
+    used up) without calling USD. A call waits until :meth:`fill` has run (``shapes`` given
+    here: at once). For a reader running in another thread while this one imports pxr modules
+    (which must not happen in two threads at once): the reader can start before the arrays exist.
+    """
 
-    def __init__(self, shapes):
+    def __init__(self, shapes=None):
+        import threading
+
         self._free: dict[tuple, list[np.ndarray]] = {}
-        for shape in shapes:
-            self._free.setdefault(tuple(int(d) for d in shape), []).append(vt_backed_empty(shape))
+        self._ready = threading.Event()
+        if shapes is not None:
+            self.fill(shapes)
+
+    def fill(self, shapes) -> None:
+        """Allocate one array per shape of ``shapes``; then the calls stop waiting."""
+        try:
+            for shape in shapes:
+                self._free.setdefault(tuple(int(d) for d in shape), []).append(vt_backed_empty(shape))
+        finally:
+            self._ready.set()  # on an error (MemoryError) the reader gets numpy arrays instead
 
     def __call__(self, shape) -> np.ndarray:
+        self._ready.wait()
         free = self._free.get(tuple(int(d) for d in shape))
         return free.pop(0) if free else np.zeros(shape, np.float32)
