@@ -26,6 +26,17 @@ def test_extent_equals_the_float64_extent_bit_for_bit(seed):
     assert _same_bits(gaussian_extent(g, 1.0), g.extent(1.0))
 
 
+@pytest.mark.parametrize("case", ["one centre", "one centre, isotropic"])
+def test_extent_when_the_scale_bounds_do_not_narrow_it(case):
+    # every Gaussian at the same centre: the min/max-scale bound keeps them all, so the rotated
+    # float32 boxes decide (anisotropic), or nothing narrows it and the float64 pass runs on all
+    g = random_gaussians(30_000, 0, seed=4)
+    g.positions[:] = np.float32([1.5, -2.0, 0.25])
+    if "isotropic" in case:
+        g.scales[:] = np.float32(0.01)
+    assert _same_bits(gaussian_extent(g), g.extent(3.0))
+
+
 def test_extent_falls_back_on_zero_quaternions_and_names_an_overflow():
     g = random_gaussians(10_000, 0, seed=1)
     g.orientations[123] = 0.0  # identity by the GaussianSet convention

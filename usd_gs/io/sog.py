@@ -151,7 +151,6 @@ def _libwebp():
     if _LIBWEBP:
         return _LIBWEBP[0]
     import ctypes
-    import ctypes.util
 
     import PIL
 
@@ -161,7 +160,11 @@ def _libwebp():
     found = None
     for name in [*names, "system"]:
         try:
-            lib = ctypes.CDLL(ctypes.util.find_library("webp") if name == "system" else name)
+            if name == "system":
+                import ctypes.util  # (runs ldconfig: only when Pillow ships no libwebp)
+
+                name = ctypes.util.find_library("webp")
+            lib = ctypes.CDLL(name)
             info, decode = lib.WebPGetInfo, lib.WebPDecodeRGBAInto
         except (OSError, AttributeError, TypeError):
             continue
