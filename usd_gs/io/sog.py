@@ -219,12 +219,31 @@ def _decode_webp(label: str, name: str, data: bytes, need: int) -> np.ndarray:
     return px.reshape(-1, 4), w, h
 
 
-def _lookup(label: str, field: str, codebook: np.ndarray, idx: np.ndarray) -> np.ndarray:
+def _lookup(label: str, field: str, codebook: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """``codebook[px[..., :3]]``: the R, G, B bytes of the RGBA pixels ``px`` (..., 4) as indices
+    into ``codebook`` (at most 256 entries); ``InputFormatError`` for an index past its end.
+    Returns a (..., 3) float32 view (the gather runs over whole pixels, alpha included, through a
+    256-entry table: contiguous, which is faster than gathering three strided bytes)."""
+    idx = px[..., :3]
     if len(codebook) < 256 and idx.size and int(idx.max()) >= len(codebook):
         i = first_bad_index(idx >= len(codebook))
         raise InputFormatError(f"{label}: '{field}' index {int(idx.reshape(len(idx), -1)[i].max())} at Gaussian {i} "
                                f"is past the {len(codebook)}-entry codebook")
-    return np.take(codebook, idx)
+    return _take_rgb(_table256(codebook), px)
+
+
+def _table256(values: np.ndarray) -> np.ndarray:
+    """``values`` (float32, at most 256) padded with zeros to 256 entries."""
+    table = np.zeros(256, np.float32)
+    table[: len(values)] = values
+    return table
+
+
+def _take_rgb(table: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """``table[px[..., :3]]`` for a 256-entry ``table`` and uint8 RGBA ``px`` (..., 4)."""
+    if px.flags.c_contiguous:
+        return np.take(table, px)[..., :3]
+    return np.take(table, px[..., :3])
 
 
 # ---------------------------------------------------------------------------------- decode
@@ -336,9 +355,9 @@ def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
         col *= inv_norm
         quats[:, j] = col
 
-    sidx = imgs["scales"][0][:n, :3]
-    out["log_scales"][sl] = _lookup(label, "scales", plan.scb, sidx)
-    out["scales"][sl] = np.take(scales_from_log(plan.scb), sidx)  # elementwise: the same as of log_scales
+    spx = imgs["scales"][0][:n]
+    out["log_scales"][sl] = _lookup(label, "scales", plan.scb, spx)
+    out["scales"][sl] = _take_rgb(scales_from_log(_table256(plan.scb)), spx)  # elementwise: as of log_scales
     c0 = imgs["sh0"][0][:n]
     sh = out["sh"][sl]
     out["opacities"][sl] = c0[:, 3].astype(np.float32) / np.float32(255.0)
@@ -352,7 +371,7 @@ def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
         if palette > ch * 64:
             raise InputFormatError(f"{label}: meta.json 'shN.count' {palette} is more than the {ch * 64} palette "
                                    f"entries image '{hfiles[0]}' ({cw}x{ch}) holds")
-        pal = _lookup(label, "shN", hcb, cen.reshape(ch * 64, rest, 4)[:palette, :, :3])  # (P, K-1, 3)
+        pal = _lookup(label, "shN", hcb, cen.reshape(ch * 64, rest, 4)[:palette])  # (P, K-1, 3)
         lab = imgs["labels"][0][:n]
         labels = lab[:, 0].astype(np.intp) | (lab[:, 1].astype(np.intp) << 8)
         if n and labels.max() >= palette:
@@ -364,7 +383,7 @@ def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
         rows = np.zeros((palette, k, 3), np.float32)
         rows[:, 1:rest + 1] = pal
         np.take(rows.reshape(palette, k * 3), labels, axis=0, out=sh.reshape(n, k * 3), mode="clip")
-    sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0[:, :3])
+    sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0)
 
 
 # ------------------------------------------------------------------------------------ LOD
