@@ -172,7 +172,7 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
 
 
 @njit(cache=True, **threaded(), fastmath=False)
-def _accumulate(g0, g1, occ, dir_dep, c, B, pixels, w, S, h, tb, ds, kmin, kmax, group_start, group_rows,
+def _accumulate(g0, g1, occ, dir_dep, c, B, pix_p1, pix_p2, tb, ds, kmin, kmax, group_start, group_rows,
                 group_tile, tile_start, tile_items, circ, k2, starts, limits, bin_skip, out, pairs, erfs):
     """Tile-major accumulation as ``dgsm_build._accumulate_point``: each group is the ROI pixels
     (rows of ``pixels``/``out`` in ``group_rows[group_start[g]:group_start[g+1]]``) of one 8x8
@@ -183,7 +183,8 @@ def _accumulate(g0, g1, occ, dir_dep, c, B, pixels, w, S, h, tb, ds, kmin, kmax,
     bin its lookups read, lowered where the ray is opaque: ``dgsm_build._saturate``), the tile
     stops at the first occluder past every cut. ``group_tile[g] < 0``: no culling, every occluder (in
     ``tile_items``, sorted) for every
-    pixel. Groups ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
+    pixel. A pixel's ray is ``c + pix_p1[p] e1 + pix_p2[p] e2 + s l`` (its plane coordinates, in the
+    frame of ``circ[:, 0:2]``). Groups ``g0..g1-1`` (run in threads by ``thread_chunks.run_chunks``)."""
     nk = kmax - kmin + 1
     lx, ly, lz = B[2, 0], B[2, 1], B[2, 2]
     for g in range(g0, g1):
@@ -201,8 +202,8 @@ def _accumulate(g0, g1, occ, dir_dep, c, B, pixels, w, S, h, tb, ds, kmin, kmax,
         cut = np.empty(npx)
         for a in range(npx):
             p = group_rows[r0 + a]
-            p1s[a] = -0.5 * S + (pixels[p] // w + 0.5) * h
-            p2s[a] = -0.5 * S + (pixels[p] % w + 0.5) * h
+            p1s[a] = pix_p1[p]
+            p2s[a] = pix_p2[p]
             cut[a] = limits[p]
         cutmax = _max_of(cut, npx)
         t = group_tile[g]
@@ -321,9 +322,9 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
             items = order
         gs, rows, gt = _groups(pixels, width, use_tiles)
         limits = tb + (deepest_bins(pix, kk, pixels, width * width) + 0.5) * ds
-        run_chunks(_accumulate, len(gs) - 1, occ, int(dir_dep), c, B, pixels, width, S, h, tb, ds, kmin, kmax, gs,
-                   rows, gt, start, items, circ, float(k_sigma) ** 2, starts, limits, bool(bin_skip), out, pairs, erfs,
-                   chunks_per_thread=8)
+        run_chunks(_accumulate, len(gs) - 1, occ, int(dir_dep), c, B, -0.5 * S + (pixels // width + 0.5) * h,
+                   -0.5 * S + (pixels % width + 0.5) * h, tb, ds, kmin, kmax, gs, rows, gt, start, items, circ,
+                   float(k_sigma) ** 2, starts, limits, bool(bin_skip), out, pairs, erfs, chunks_per_thread=8)
     return DirAtlas(width, K, c, B, h, tb, ds, kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()))
 
 
@@ -467,3 +468,65 @@ def transmittance_points(direction, occ, dir_dep: int, cov6, points, k_sigma: fl
     run_chunks(_point_depths, len(gs) - 1, occ, int(dir_dep), c, B, pts, gs, rows, gt, start, items, circ,
                float(k_sigma) ** 2, starts, out, pairs, chunks_per_thread=8)
     return np.clip(out, 0.0, 1.0), int(pairs.sum())
+
+
+# ------------------------------------------------------------------ shot-long lattice
+LATTICE_BLOCK = 1024
+
+
+def lattice_columns(B, occ, dir_dep: int, cov6, c, h: float, ij, tb: float, ds: float, K: int, k_sigma: float,
+                    bin_skip: bool = True) -> tuple[np.ndarray, int]:
+    """Whole voxel columns of a fixed lattice (a shot-long directional DGSM): lattice pixel
+    ``(i, j)`` (rows of ``ij`` (M, 2) int64, any sign, unique) is the ray
+    ``c + (i + 1/2) h e1 + (j + 1/2) h e2 + s l`` (``B`` rows ``e1, e2, l``, :func:`light_basis`),
+    its K bins at depths ``s = tb + (k + 1/2) ds`` from that plane. Returns ``(T (M, K) float32,
+    pairs evaluated)``. A column's values do not depend on which other columns are computed with it
+    (the plane coordinates and the occluders' projected centres are taken in the lattice's own frame,
+    the occluders in one global order), so a lattice filled in any order holds the same values. The
+    work runs in blocks of at most ``LATTICE_BLOCK`` pixels a side, each binning only the occluders
+    whose ``k_sigma`` sphere can reach it."""
+    ij = np.asarray(ij, np.int64).reshape(-1, 2)
+    m = ij.shape[0]
+    out = np.ones((m, K), np.float32)
+    occ = np.ascontiguousarray(occ, dtype=np.float64)
+    if m == 0 or occ.shape[0] == 0:
+        return out, 0
+    cv = np.ascontiguousarray(cov6, dtype=np.float64)
+    c = np.asarray(c, np.float64)
+    rel = occ[:, :3] - c
+    cu, cw, depth = rel @ B[0], rel @ B[1], rel @ B[2]
+    starts = support_starts(depth, occ, k_sigma, _sigma_along(cv, B[2]))
+    reach = float(k_sigma) / np.min(occ[:, 12:15], axis=1) + h  # k_sigma sigma_max, plus a pixel
+    blocks, inv = np.unique(ij // LATTICE_BLOCK, axis=0, return_inverse=True)
+    pairs_total = 0
+    for b in range(len(blocks)):
+        rows_b = np.flatnonzero(inv.reshape(-1) == b)
+        sub = ij[rows_b]
+        i0, j0 = sub.min(axis=0)
+        w = int(TILE * math.ceil((int(max(sub[:, 0].max() - i0, sub[:, 1].max() - j0)) + 1) / TILE))
+        lo_u, lo_v = i0 * h, j0 * h
+        cand = np.flatnonzero((cu + reach >= lo_u) & (cu - reach <= lo_u + w * h)
+                              & (cw + reach >= lo_v) & (cw - reach <= lo_v + w * h))
+        if cand.size == 0:
+            continue
+        S = w * h
+        c_sub = c + (i0 * h + 0.5 * S) * B[0] + (j0 * h + 0.5 * S) * B[1]
+        pixels = (sub[:, 0] - i0) * w + (sub[:, 1] - j0)
+        wt = w // TILE
+        active = np.zeros(wt * wt, np.bool_)
+        active[(pixels // w // TILE) * wt + (pixels % w) // TILE] = True
+        occ_c = np.ascontiguousarray(occ[cand])
+        start, items, circ = _bin(np.ascontiguousarray(occ_c[:, :3]), np.ascontiguousarray(cv[cand]), c_sub, B, w, S, h,
+                                  float(k_sigma), active, np.argsort(starts[cand], kind="stable").astype(np.int64))
+        circ[:, 0], circ[:, 1] = cu[cand], cw[cand]  # in the lattice's frame, as the pixels
+        gs, rows, gt = _groups(pixels, w, True)
+        vals = np.ones((len(rows_b), K), np.float32)
+        pairs = np.zeros(len(rows_b), np.int64)
+        erfs = np.zeros(len(rows_b), np.int64)
+        run_chunks(_accumulate, len(gs) - 1, occ_c, int(dir_dep), c, B, (sub[:, 0] + 0.5) * h, (sub[:, 1] + 0.5) * h,
+                   float(tb), float(ds), 0, K - 1, gs, rows, gt, start, items, circ, float(k_sigma) ** 2,
+                   np.ascontiguousarray(starts[cand]), np.full(len(rows_b), np.inf), bool(bin_skip), vals, pairs,
+                   erfs, chunks_per_thread=8)
+        out[rows_b] = vals
+        pairs_total += int(pairs.sum())
+    return out, pairs_total

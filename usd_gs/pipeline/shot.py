@@ -50,17 +50,14 @@ from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
 from usd_gs.shadows.shot import (
     Receivers,
-    caster_transmittance,
     occluder_sphere,
-    occluders_toward,
     prim_spheres,
     prims_in_shadow,
     receiver_points,
     shared_transmittance,
-    toward_mask,
 )
 from usd_gs.shadows.sky_occlusion import receiver_normals, static_sky_factors
-from usd_gs.shadows.static_scene import StaticSceneAtlas
+from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, StaticSceneAtlas, StaticSceneSunAtlas
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
 from usd_gs.usd.lux import ShotLight, read_stage_lights
@@ -402,33 +399,15 @@ class ShotProcessor:
 
     def _scene_shadows_on_moving(self, light, sets: dict, drecv: Receivers, td: np.ndarray) -> None:
         """Multiplies ``td`` (the moving receivers' transmittance for ``light``) by the static
-        scene's: from its shot-long atlas for a point light, from per-prim culled occluders for a
-        directional one."""
+        scene's, from its shot-long atlas (built once per shot and light, voxel columns on demand):
+        ``StaticSceneAtlas`` for a point light, ``StaticSceneSunAtlas`` for a directional one."""
         block = self._scene_block
         if block is None or not block.count:
             return
-        if light.kind == "point":
-            # the static scene's atlas, built once per shot and light, voxel columns on demand
-            part = receiver_points(block, drecv, light, self._centre_cfg, roi="all",
-                                   bias=self.opts.contact_bias / self.mpu)
-            if part is not None:
-                td[part[0]] *= self._static_atlas(light).transmittance(part[1])
-            return
-        keep = self._emitter_keep(light)
-        for p in self._dyn_recv_paths:
-            # brick-level culling first, then per Gaussian
-            near_prims = toward_mask(self._caster_centres, self._caster_radii, sets[p].positions, light)
-            if not near_prims.any():
-                continue
-            cand = np.concatenate([np.arange(*self._caster_ranges[k]) for k in np.flatnonzero(near_prims)])
-            cand = cand[keep[cand]]
-            near = occluders_toward(block, sets[p].positions, light, self.dgsm.k_sigma, candidates=cand)
-            if near.size == 0:
-                continue
-            a, b = drecv.ranges[p]
-            idx, val = caster_transmittance(block.subset(near), drecv, light, self._centre_cfg, roi="cone",
-                                            bias=self.opts.contact_bias / self.mpu, candidates=np.arange(a, b))
-            td[idx] *= val
+        part = receiver_points(block, drecv, light, self._centre_cfg, roi="all", bias=self.opts.contact_bias / self.mpu)
+        if part is not None:
+            atlas = self._static_atlas(light) if light.kind == "point" else self._static_sun_atlas(light)
+            td[part[0]] *= atlas.transmittance(part[1])
 
     def _self_points(self, q: str, g, drecv: Receivers, light):
         """:func:`receiver_points` of a relit prim's own Gaussians for its own DGSM (self-shadowing,
@@ -736,6 +715,15 @@ class ShotProcessor:
         if key not in self._scene_packs:
             self._scene_packs[key] = StaticSceneAtlas(self._scene_block.subset(self._emitter_keep(light)),
                                                       light.position, self._centre_cfg)
+        return self._scene_packs[key]
+
+    def _static_sun_atlas(self, light):
+        """The static casters' shot-long DGSM for a directional light (``StaticSceneSunAtlas``,
+        lattice pitch ``SUN_ATLAS_PITCH`` metres)."""
+        key = ("sun atlas", tuple(np.round(light.direction, 9)))
+        if key not in self._scene_packs:
+            self._scene_packs[key] = StaticSceneSunAtlas(self._scene_block, light.direction, self._centre_cfg,
+                                                         SUN_ATLAS_PITCH / self.mpu)
         return self._scene_packs[key]
 
     def _emitter_keep(self, light) -> np.ndarray:
