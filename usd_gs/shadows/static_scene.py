@@ -182,11 +182,12 @@ class StaticSceneSunAtlas:
         from numba_kernels import dgsm_directional as dd
 
         keys = self._key(ij)
-        keys, first = np.unique(keys, return_index=True)
-        pos = np.searchsorted(self.keys, keys)
-        have = (pos < self.keys.size) & (self.keys[np.minimum(pos, max(self.keys.size - 1, 0))] == keys) \
-            if self.keys.size else np.zeros(keys.size, bool)
-        new = ij[first[~have]]
+        if self.keys.size:  # the columns already there first (a sorted search), then unique the rest
+            pos = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
+            miss = np.flatnonzero(self.keys[pos] != keys)
+            ij, keys = ij[miss], keys[miss]
+        _, first = np.unique(keys, return_index=True)
+        new = ij[first]
         if new.shape[0] == 0:
             return
         near = self._near(new)
