@@ -375,6 +375,9 @@ def pixel_rays(atlas: DirAtlas) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ------------------------------------------------------------------ exact at points
+#: tile side of :func:`transmittance_points`' occluder buckets, in median culling radii
+TILE_RADII = 2.0
+
 @njit(cache=True, **threaded(), fastmath=False)
 def _point_depths(g0, g1, occ, dir_dep, c, B, pts, group_start, group_rows, group_tile, tile_start, tile_items,
                   circ, k2, starts, out, pairs):
@@ -450,7 +453,7 @@ def transmittance_points(direction, occ, dir_dep: int, cov6, points, k_sigma: fl
     cv = np.ascontiguousarray(cov6, dtype=np.float64)
     c, ext, _, _ = _projected_box(B, pts)
     r_med = float(k_sigma) * float(np.sqrt(max(np.median(cv[:, 0] + cv[:, 3] + cv[:, 5]) / 3.0, 0.0)))
-    h = max(2.0 * r_med / TILE, ext / (max_width - 2), 1e-9)
+    h = max(TILE_RADII * r_med / TILE, ext / (max_width - 2), 1e-9)
     width = int(TILE * math.ceil((ext / h + 2.0) / TILE))
     S = h * width
     i = np.clip(np.floor((pts @ B[0] - c @ B[0] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
@@ -472,6 +475,7 @@ def transmittance_points(direction, occ, dir_dep: int, cov6, points, k_sigma: fl
 
 # ------------------------------------------------------------------ shot-long lattice
 LATTICE_BLOCK = 1024
+
 
 
 def lattice_columns(B, occ, dir_dep: int, cov6, c, h: float, ij, tb: float, ds: float, K: int, k_sigma: float,

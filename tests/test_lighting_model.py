@@ -10,11 +10,11 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from usd_gs import sh3dgs
+from usd_gs.colorspace import display_factor, srgb_decode, srgb_encode
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.relight.avatar import relight_factors
-from usd_gs.colorspace import display_factor, srgb_decode, srgb_encode
 from usd_gs.relight.direct import cap_irradiance, direct_irradiance
 from usd_gs.usd.lux import ShotLight, blackbody_rgb, read_stage_lights
 

@@ -43,6 +43,7 @@ import numpy as np
 
 from numba_kernels.normals import gaussian_normals
 from usd_gs import sh3dgs
+from usd_gs.colorspace import srgb_decode, srgb_encode
 from usd_gs.demo.mesh_avatar import AVATAR_INSET, gaussians_on_mesh, posed_avatar_frames, posed_meshes, sample_surface
 from usd_gs.demo.stage import canonical_matrix, locate_data_dir
 from usd_gs.evaluation.colorimetry import luminance
@@ -59,7 +60,6 @@ from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
 from usd_gs.io import envmap
 from usd_gs.io.gltf import load_skinned_mesh
 from usd_gs.pipeline.options import ProcessOptions
-from usd_gs.colorspace import srgb_decode, srgb_encode
 from usd_gs.relight.direct import cap_irradiance, self_shadow_samples
 from usd_gs.shadows.shot import Receivers, caster_transmittance, receiver_points, shared_transmittance
 from usd_gs.usd.lux import ShotLight

@@ -53,8 +53,8 @@ from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_ang
 from numba_kernels.sh_real import eval_basis_rh_numpy
 from numba_kernels.zh_transfer import zh_diffuse_color
 from usd_gs import sh3dgs
-from usd_gs.io import envmap
 from usd_gs.colorspace import display_factor, from_linear, to_linear
+from usd_gs.io import envmap
 from usd_gs.relight.direct import direct_factors, direct_irradiance, light_direction
 from usd_gs.relight.parallax import cube_texels, reprojected_probes
 from usd_gs.relight.probe import PROBE_DILATION, SHProbe, fit_probe, render_probe_faces
