@@ -4,10 +4,11 @@ For each propagation direction ``l_d`` (D, 3), unit) and point ``x_j`` (M, 3) th
 directional DGSM transmittance of ``dgsm_exact``:
 ``T[j, d] = exp(-sum_i tau_i(l_d; -inf, 0))`` on the ray ``x_j + s l_d`` (the half-line towards
 the light), with the packed occluders of ``dgsm_model`` (eqs. 1-5), summed only over the
-occluders whose ``k_sigma`` footprint on the plane orthogonal to ``l_d`` covers the point: the
-occluders are bucketed per direction into a square grid of ``cell``-sized cells over the points'
-projected bounding box (a ``k_sigma sqrt(lambda_max)`` circle of the projected covariance, as
-``dgsm_directional`` culls). The dropped terms are below ``exp(-k_sigma^2 / 2)`` of an occluder's
+occluders whose ``k_sigma`` footprint on the plane orthogonal to ``l_d`` (the ellipse of the
+projected covariance) covers the point: the occluders are bucketed per direction into a square
+grid of ``cell``-sized cells over the points' projected bounding box by the ``k_sigma
+sqrt(lambda_max)`` circle around that ellipse, as ``dgsm_directional`` culls. The dropped
+terms are below ``exp(-k_sigma^2 / 2)`` of an occluder's
 peak; a sum that passes :data:`TAU_OPAQUE` stops there (``T < 1e-9``). One call runs every
 direction (parallel over directions), so there is one thread-pool round trip per batch rather
 than per direction. Lengths in metres; returns float32 in [0, 1].
@@ -55,6 +56,7 @@ def _one_direction(d, occ, dir_dep, cov6, pts, k_sigma, cell, out_col):
         pu[j] = pts[j, 0] * ax + pts[j, 1] * ay + pts[j, 2] * az
         pv[j] = pts[j, 0] * bx + pts[j, 1] * by + pts[j, 2] * bz
     u0, u1, v0, v1 = pu.min(), pu.max(), pv.min(), pv.max()
+    k2 = k_sigma * k_sigma
     h = max(cell, max(u1 - u0, v1 - v0) / MAX_GRID, 1e-9)
     gw = int((u1 - u0) / h) + 1
     gh = int((v1 - v0) / h) + 1
@@ -62,6 +64,7 @@ def _one_direction(d, occ, dir_dep, cov6, pts, k_sigma, cell, out_col):
     cu = np.empty(n)
     cv = np.empty(n)
     rad = np.empty(n)
+    con = np.empty((n, 3))  # the projected k_sigma ellipse's conic (pixel test)
     lo_i = np.empty(n, np.int64)
     hi_i = np.empty(n, np.int64)
     lo_j = np.empty(n, np.int64)
@@ -87,6 +90,11 @@ def _one_direction(d, occ, dir_dep, cov6, pts, k_sigma, cell, out_col):
         lam = tr + math.sqrt(max(tr * tr - det, 0.0))
         r = k_sigma * math.sqrt(max(lam, 0.0))
         rad[i] = r
+        if det > 1e-300 and r > 0.0:
+            con[i, 0], con[i, 1], con[i, 2] = pbb / det, -pab / det, paa / det
+        else:
+            con[i, 0] = con[i, 2] = k_sigma * k_sigma / max(r * r, 1e-300)
+            con[i, 1] = 0.0
         a0 = int(math.floor((cu[i] - r - u0) / h))
         a1 = int(math.floor((cu[i] + r - u0) / h))
         b0 = int(math.floor((cv[i] - r - v0) / h))
@@ -121,7 +129,7 @@ def _one_direction(d, occ, dir_dep, cov6, pts, k_sigma, cell, out_col):
             i = items[t]
             du = pu[j] - cu[i]
             dv = pv[j] - cv[i]
-            if du * du + dv * dv > rad[i] * rad[i]:
+            if con[i, 0] * du * du + 2.0 * con[i, 1] * du * dv + con[i, 2] * dv * dv > k2:
                 continue
             acc += segment_depth(occ, i, pts[j, 0], pts[j, 1], pts[j, 2], dx, dy, dz, -np.inf, 0.0, dir_dep)
             if acc > TAU_OPAQUE:
