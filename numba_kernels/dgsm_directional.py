@@ -245,6 +245,14 @@ def _accumulate(g0, g1, occ, dir_dep, c, B, pix_p1, pix_p2, tb, ds, kmin, kmax, 
             erfs[p] = ne[a]
 
 
+def dot_rows(a, v) -> np.ndarray:
+    """(N,) float64 ``a @ v`` for (N, 3) ``a`` and (3,) ``v``, elementwise (no BLAS call: numpy's
+    threaded BLAS made these small products up to 20x slower while the kernels' threads ran, and the
+    result of an elementwise product does not depend on how the rows are split)."""
+    a = np.asarray(a, np.float64)
+    return a[:, 0] * v[0] + a[:, 1] * v[1] + a[:, 2] * v[2]
+
+
 def _sigma_along(cov6, l) -> np.ndarray:
     """(N,) ``sqrt(l^T Sigma l)`` of (N, 6) covariances (xx, xy, xz, yy, yz, zz) along unit ``l``."""
     cv = np.asarray(cov6, np.float64)
@@ -257,7 +265,7 @@ def _projected_box(B, pts):
     """``(c, ext, lo, hi)``: the grid's reference point (centre of the points' projected bounding
     box, on the plane through the origin orthogonal to ``l``), the box's larger side and the
     per-axis minima/maxima of ``pts @ B.T`` (grid coordinates and depth)."""
-    proj = pts @ B.T
+    proj = np.stack([dot_rows(pts, B[0]), dot_rows(pts, B[1]), dot_rows(pts, B[2])], axis=1)
     lo, hi = proj.min(axis=0), proj.max(axis=0)
     mid = 0.5 * (lo + hi)
     return B[0] * mid[0] + B[1] * mid[1], max(hi[0] - lo[0], hi[1] - lo[1], 1e-6), lo, hi
@@ -314,7 +322,7 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
     active = np.zeros(wt * wt, np.bool_)
     active[(pixels // width // TILE) * wt + (pixels % width) // TILE] = True
     if occ.shape[0]:
-        starts = support_starts((occ[:, :3] - c) @ B[2], occ, k_sigma, _sigma_along(cov6, B[2]))
+        starts = support_starts(dot_rows(occ[:, :3] - c, B[2]), occ, k_sigma, _sigma_along(cov6, B[2]))
         order = np.argsort(starts, kind="stable").astype(np.int64)
         start, items, circ = _bin(np.ascontiguousarray(occ[:, :3]), np.ascontiguousarray(cov6, dtype=np.float64), c, B,
                                   width, S, h, float(k_sigma), active, order)
@@ -456,14 +464,14 @@ def transmittance_points(direction, occ, dir_dep: int, cov6, points, k_sigma: fl
     h = max(TILE_RADII * r_med / TILE, ext / (max_width - 2), 1e-9)
     width = int(TILE * math.ceil((ext / h + 2.0) / TILE))
     S = h * width
-    i = np.clip(np.floor((pts @ B[0] - c @ B[0] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
-    j = np.clip(np.floor((pts @ B[1] - c @ B[1] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
+    i = np.clip(np.floor((dot_rows(pts, B[0]) - c @ B[0] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
+    j = np.clip(np.floor((dot_rows(pts, B[1]) - c @ B[1] + 0.5 * S) / h), 0, width - 1).astype(np.int64)
     flat = i * width + j
     wt = width // TILE
     active = np.zeros(wt * wt, np.bool_)
     active[(i // TILE) * wt + j // TILE] = True
     occ = np.ascontiguousarray(occ, dtype=np.float64)
-    starts = support_starts((occ[:, :3] - c) @ B[2], occ, k_sigma, _sigma_along(cv, B[2]))
+    starts = support_starts(dot_rows(occ[:, :3] - c, B[2]), occ, k_sigma, _sigma_along(cv, B[2]))
     start, items, circ = _bin(np.ascontiguousarray(occ[:, :3]), cv, c, B, width, S, h, float(k_sigma), active,
                               np.argsort(starts, kind="stable").astype(np.int64))
     gs, rows, gt = _groups(flat, width, True)
@@ -498,7 +506,7 @@ def lattice_columns(B, occ, dir_dep: int, cov6, c, h: float, ij, tb: float, ds: 
     cv = np.ascontiguousarray(cov6, dtype=np.float64)
     c = np.asarray(c, np.float64)
     rel = occ[:, :3] - c
-    cu, cw, depth = rel @ B[0], rel @ B[1], rel @ B[2]
+    cu, cw, depth = dot_rows(rel, B[0]), dot_rows(rel, B[1]), dot_rows(rel, B[2])
     starts = support_starts(depth, occ, k_sigma, _sigma_along(cv, B[2]))
     reach = float(k_sigma) / np.min(occ[:, 12:15], axis=1) + h  # k_sigma sigma_max, plus a pixel
     blocks, inv = np.unique(ij // LATTICE_BLOCK, axis=0, return_inverse=True)

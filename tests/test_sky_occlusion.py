@@ -100,3 +100,18 @@ def test_static_factors_follow_the_caster_and_the_tolerance():
     # no sky in the lights: nothing
     none_i, _ = static_sky_factors([caster], recv, prim_spheres(recv), UP, (1.0, 1.0, 0.35), tol)
     assert none_i.size == 0
+
+
+def test_kernel_equals_numpy_reference():
+    from numba_kernels.reference.sky_occlusion import hidden_sky_share as reference
+    from numba_kernels.sky_occlusion import hidden_sky_share as kernel
+
+    rng = np.random.default_rng(5)
+    c = rng.uniform(-1, 1, (8, 3)) + [0, 1.0, 0]
+    r = rng.uniform(0.05, 0.3, 8)
+    x = np.concatenate([rng.uniform(-3, 3, (20_000, 3)) * [1, 0, 1], c[:3] + 0.01])  # some inside spheres
+    n = rng.normal(size=(len(x), 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    got = kernel(c, r, x, n)
+    np.testing.assert_allclose(got, reference(c, r, x, n), rtol=1e-12, atol=1e-15)
+    assert np.all(got[-3:] == 1.0) and 0.0 < np.median(got) < 0.5 and got.min() >= 0.0

@@ -74,18 +74,11 @@ def reach(radii: np.ndarray, min_share: float) -> float:
 def hidden_sky_share(centres: np.ndarray, radii: np.ndarray, positions: np.ndarray,
                      normals: np.ndarray) -> np.ndarray:
     """(M,) float64 in [0, 1]: the cosine-weighted share of each receiver's hemisphere the
-    spheres hide (module docstring); ``positions`` (M, 3), unit ``normals`` (M, 3) two-sided. A
-    receiver inside a sphere is wholly hidden."""
-    x = np.asarray(positions, np.float64)
-    nrm = np.asarray(normals, np.float64)
-    out = np.zeros(x.shape[0])
-    for c, r in zip(np.asarray(centres, np.float64), np.asarray(radii, np.float64), strict=True):
-        v = c - x
-        d2 = np.einsum("ij,ij->i", v, v)
-        inside = d2 <= r * r
-        cos = np.abs(np.einsum("ij,ij->i", v, nrm)) / np.sqrt(np.maximum(d2, 1e-300))
-        out += np.where(inside, 1.0, (r * r / np.maximum(d2, 1e-300)) * cos)
-    return np.clip(out, 0.0, 1.0)
+    spheres hide (module docstring; ``numba_kernels.sky_occlusion``); ``positions`` (M, 3), unit
+    ``normals`` (M, 3) two-sided. A receiver inside a sphere is wholly hidden."""
+    from numba_kernels.sky_occlusion import hidden_sky_share as kernel
+
+    return kernel(centres, radii, positions, normals)
 
 
 def receiver_normals(g: GaussianSet, idx: np.ndarray) -> np.ndarray:

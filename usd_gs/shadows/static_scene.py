@@ -125,7 +125,7 @@ class StaticSceneSunAtlas:
         self.occ, self.dir_dep, self.cov6 = prepare_occluders(occluders, cfg)
         self.c = np.zeros(3)
         if self.count:
-            depth = occluders.positions.astype(np.float64) @ self.direction
+            depth = dd.dot_rows(occluders.positions, self.direction)
             reach = cfg.k_sigma * occluders.scales.astype(np.float64).max(axis=1)
             s0, s1 = float((depth - reach).min()), float((depth + reach).max())
         else:
@@ -139,8 +139,8 @@ class StaticSceneSunAtlas:
         # each occluder's lattice coordinates and culling reach, in pixels (for _near)
         if self.count:
             mu = self.occ[:, :3] - self.c
-            self._u = mu @ self.basis[0] / self.h - 0.5
-            self._v = mu @ self.basis[1] / self.h - 0.5
+            self._u = dd.dot_rows(mu, self.basis[0]) / self.h - 0.5
+            self._v = dd.dot_rows(mu, self.basis[1]) / self.h - 0.5
             self._r = cfg.k_sigma / np.min(self.occ[:, 12:15], axis=1) / self.h + 1.0
 
     @property
@@ -154,10 +154,12 @@ class StaticSceneSunAtlas:
 
     def _stencils(self, pts: np.ndarray):
         """Per point: the lattice (i0, j0) of its bilinear stencil, weights (wx, wy), bin k0, wk."""
+        from numba_kernels.dgsm_directional import dot_rows
+
         rel = pts - self.c
-        fx = rel @ self.basis[0] / self.h - 0.5
-        fy = rel @ self.basis[1] / self.h - 0.5
-        fk = np.clip((rel @ self.direction - self.tb) / self.ds - 0.5, 0.0, self.K - 1.0)
+        fx = dot_rows(rel, self.basis[0]) / self.h - 0.5
+        fy = dot_rows(rel, self.basis[1]) / self.h - 0.5
+        fk = np.clip((dot_rows(rel, self.direction) - self.tb) / self.ds - 0.5, 0.0, self.K - 1.0)
         i0, j0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
         k0 = np.minimum(np.floor(fk).astype(np.int64), self.K - 2)
         return i0, j0, fx - i0, fy - j0, k0, fk - k0
