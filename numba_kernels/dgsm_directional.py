@@ -106,13 +106,39 @@ def _stencils(pts, c, B, w, K, S, h, tb, ds, pix, kk):
         kk[m, 1] = min(k0 + 1, K - 1)
 
 
+@njit(cache=True, **threaded(), fastmath=False)
+def _circles(i0_, i1_, mu, cov, c, B, S, h, k_sigma, circ):
+    """Rows i0_..i1_-1 of ``circ``: grid-plane centre, culling radius and projected-ellipse conic."""
+    for i in range(i0_, i1_):
+        fx, fy, _ = _coords(mu[i, 0], mu[i, 1], mu[i, 2], c, B, S, h, 0.0, 1.0)
+        s00, s01, s02, s11, s12, s22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
+        p = 0.0
+        q = 0.0
+        o = 0.0
+        for a in range(3):
+            for b in range(3):
+                sab = (s00 if a == 0 and b == 0 else s11 if a == 1 and b == 1 else s22 if a == 2 and b == 2
+                       else s01 if a + b == 1 else s02 if a + b == 2 else s12)
+                p += B[0, a] * sab * B[0, b]
+                q += B[1, a] * sab * B[1, b]
+                o += B[0, a] * sab * B[1, b]
+        lam1 = 0.5 * (p + q) + math.sqrt(0.25 * (p - q) * (p - q) + o * o)
+        r = k_sigma * math.sqrt(max(lam1, 0.0))
+        circ[i, 0] = (fx + 0.5) * h - 0.5 * S  # grid-plane coordinates of mu
+        circ[i, 1] = (fy + 0.5) * h - 0.5 * S
+        circ[i, 2] = r
+        det = p * q - o * o
+        if det > 1e-300 and r > 0.0:  # the k_sigma ellipse's conic (pixel test), else the circle
+            circ[i, 3], circ[i, 4], circ[i, 5] = q / det, -o / det, p / det
+        else:
+            circ[i, 3] = circ[i, 5] = k_sigma * k_sigma / max(r * r, 1e-300)
+            circ[i, 4] = 0.0
+
+
 @njit(cache=True, fastmath=False)
-def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
-    """Tile lists of the occluders (each list in the order ``order`` lists them), with each
-    occluder's grid-plane centre, culling radius and projected-ellipse conic (``circ`` (N, 6))."""
-    n = mu.shape[0]
+def _tile_lists(circ, w, S, h, tile_active, order):  # serial: a counting sort, milliseconds
+    n = circ.shape[0]
     wt = w // TILE
-    circ = np.empty((n, 6))
     counts = np.zeros(wt * wt, np.int64)
     for pass_ in range(2):
         if pass_ == 1:
@@ -126,31 +152,7 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
             fill = np.zeros(1, np.int64)
             items = np.zeros(1, np.int64)
         for ii in range(n):
-            i = ii if pass_ == 0 else order[ii]
-            if pass_ == 0:
-                fx, fy, _ = _coords(mu[i, 0], mu[i, 1], mu[i, 2], c, B, S, h, 0.0, 1.0)
-                s00, s01, s02, s11, s12, s22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
-                p = 0.0
-                q = 0.0
-                o = 0.0
-                for a in range(3):
-                    for b in range(3):
-                        sab = (s00 if a == 0 and b == 0 else s11 if a == 1 and b == 1 else s22 if a == 2 and b == 2
-                               else s01 if a + b == 1 else s02 if a + b == 2 else s12)
-                        p += B[0, a] * sab * B[0, b]
-                        q += B[1, a] * sab * B[1, b]
-                        o += B[0, a] * sab * B[1, b]
-                lam1 = 0.5 * (p + q) + math.sqrt(0.25 * (p - q) * (p - q) + o * o)
-                r = k_sigma * math.sqrt(max(lam1, 0.0))
-                circ[i, 0] = (fx + 0.5) * h - 0.5 * S  # grid-plane coordinates of mu
-                circ[i, 1] = (fy + 0.5) * h - 0.5 * S
-                circ[i, 2] = r
-                det = p * q - o * o
-                if det > 1e-300 and r > 0.0:  # the k_sigma ellipse's conic (pixel test), else the circle
-                    circ[i, 3], circ[i, 4], circ[i, 5] = q / det, -o / det, p / det
-                else:
-                    circ[i, 3] = circ[i, 5] = k_sigma * k_sigma / max(r * r, 1e-300)
-                    circ[i, 4] = 0.0
+            i = order[ii]
             fx = (circ[i, 0] + 0.5 * S) / h - 0.5
             fy = (circ[i, 1] + 0.5 * S) / h - 0.5
             rp = circ[i, 2] / h + 1.0
@@ -168,6 +170,16 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
                     else:
                         items[fill[t]] = i
                         fill[t] += 1
+    return start, items
+
+
+def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
+    """Tile lists of the occluders (each list in the order ``order`` lists them), with each
+    occluder's grid-plane centre, culling radius and projected-ellipse conic (``circ`` (N, 6)):
+    the circles in threads, the lists by one serial counting sort."""
+    circ = np.empty((mu.shape[0], 6))
+    run_chunks(_circles, mu.shape[0], mu, cov, c, B, float(S), float(h), float(k_sigma), circ, min_chunk=8192)
+    start, items = _tile_lists(circ, int(w), float(S), float(h), tile_active, np.ascontiguousarray(order, np.int64))
     return start, items, circ
 
 
