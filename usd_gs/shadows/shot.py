@@ -248,12 +248,16 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
 
 def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[np.ndarray, float]]:
     """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent."""
+    from numba_kernels.extent import gaussian_extent
+
     out = {}
     g = receivers.gaussians
     for path, (a, b) in receivers.ranges.items():
         if b <= a:
             continue
-        ext = g.subset(slice(a, b)).extent(k_sigma).astype(np.float64)
+        # GaussianSet.extent's own kernel on the prim's rows (views, not a subset's copies of the SH)
+        box = gaussian_extent(g.positions[a:b], g.orientations[a:b], g.scales[a:b], k_sigma)
+        ext = (box.astype(np.float32) if box is not None else g.subset(slice(a, b)).extent(k_sigma)).astype(np.float64)
         out[path] = (0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0])))
     return out
 
