@@ -146,23 +146,18 @@ def deepest_bins(pix, kk, pixels, n_pixels: int) -> np.ndarray:
     return deep[pixels]
 
 
-def roi_voxels(light, pts, w: int, K: int, t_max: float, deepest: bool = False):
+def roi_voxels(light, pts, w: int, K: int, t_max: float):
     """Unique flat pixel ids ``P`` and ``(kmin, kmax)`` covering the trilinear stencils of
-    ``pts`` (M, 3); with ``deepest``, also each pixel's deepest bin read (:func:`deepest_bins`).
-    Empty ``pts`` gives an empty ``P`` and ``(0, -1)``."""
+    ``pts`` (M, 3). Empty ``pts`` gives an empty ``P`` and ``(0, -1)``."""
     m = pts.shape[0]
     if m == 0:
-        z = np.zeros(0, np.int64)
-        return (z, 0, -1, z) if deepest else (z, 0, -1)
+        return np.zeros(0, np.int64), 0, -1
     pix = np.empty((m, 4), np.int64)
     kk = np.empty((m, 2), np.int64)
     run_chunks(_stencils, pts.shape[0], light, pts, w, K, t_max, pix, kk, min_chunk=1024)
     mask = np.zeros(w * w, np.bool_)
     mask[pix.ravel()] = True
-    pixels = np.flatnonzero(mask)
-    if deepest:
-        return pixels, int(kk[:, 0].min()), int(kk[:, 1].max()), deepest_bins(pix, kk, pixels, w * w)
-    return pixels, int(kk[:, 0].min()), int(kk[:, 1].max())
+    return np.flatnonzero(mask), int(kk[:, 0].min()), int(kk[:, 1].max())
 
 
 # ----------------------------------------------------------------- tile culling

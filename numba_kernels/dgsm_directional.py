@@ -183,6 +183,24 @@ def _bin(mu, cov, c, B, w, S, h, k_sigma, tile_active, order):
     return start, items, circ
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _ellipse_hits(p1s, p2s, n, circ, o, k2, so, cut, every, hit):
+    """``hit[a]``: the first ``n`` plane points ``(p1s, p2s)`` inside occluder ``o``'s projected
+    ``k_sigma`` ellipse (``circ[o]``: centre, radius, conic; ``k2 = k_sigma^2``), or all of them with
+    ``every``, whose cut depth ``cut[a]`` lies beyond the occluder's support start ``so``. Returns the
+    number of hits. Branch-free, so numba vectorises it over the points (``dgsm_build.cone_hits``'s
+    counterpart)."""
+    cx, cy, ca, cb, cc = circ[o, 0], circ[o, 1], circ[o, 3], circ[o, 4], circ[o, 5]
+    nh = 0
+    for a in range(n):
+        du = p1s[a] - cx
+        dv = p2s[a] - cy
+        h = ((ca * du * du + 2.0 * cb * du * dv + cc * dv * dv <= k2) | every) & (so < cut[a])
+        hit[a] = h
+        nh += h
+    return nh
+
+
 @njit(cache=True, **threaded(), fastmath=False)
 def _accumulate(g0, g1, occ, dir_dep, c, B, pix_p1, pix_p2, tb, ds, kmin, kmax, group_start, group_rows,
                 group_tile, tile_start, tile_items, circ, k2, starts, limits, bin_skip, out, pairs, erfs):
@@ -225,15 +243,7 @@ def _accumulate(g0, g1, occ, dir_dep, c, B, pix_p1, pix_p2, tb, ds, kmin, kmax, 
             so = starts[o]
             if so >= cutmax:
                 break  # past every pixel's cut (the list is sorted: so are all later ones)
-            cx, cy, ca, cb, cc = circ[o, 0], circ[o, 1], circ[o, 3], circ[o, 4], circ[o, 5]
-            nh = 0
-            for a in range(npx):  # branch-free: vectorised over the tile's pixels
-                du = p1s[a] - cx
-                dv = p2s[a] - cy
-                hh = ((ca * du * du + 2.0 * cb * du * dv + cc * dv * dv <= k2) | (t < 0)) & (so < cut[a])
-                hit[a] = hh
-                nh += hh
-            if nh == 0:
+            if _ellipse_hits(p1s, p2s, npx, circ, o, k2, so, cut, t < 0, hit) == 0:
                 continue
             for a in range(npx):
                 if not hit[a]:
@@ -428,15 +438,7 @@ def _point_depths(g0, g1, occ, dir_dep, c, B, pts, group_start, group_rows, grou
             so = starts[o]
             if so >= cutmax:
                 break
-            cx, cy, ca, cb, cc = circ[o, 0], circ[o, 1], circ[o, 3], circ[o, 4], circ[o, 5]
-            nh = 0
-            for a in range(npx):
-                du = p1s[a] - cx
-                dv = p2s[a] - cy
-                hh = (ca * du * du + 2.0 * cb * du * dv + cc * dv * dv <= k2) & (so < cut[a])
-                hit[a] = hh
-                nh += hh
-            if nh == 0:
+            if _ellipse_hits(p1s, p2s, npx, circ, o, k2, so, cut, False, hit) == 0:
                 continue
             for a in range(npx):
                 if not hit[a]:

@@ -192,14 +192,14 @@ def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_
     pts = se.region_points(centroid, up_axis, cfg.visibility_offset / mpu)
     rect_config = rect_config or RectLightConfig()
     rects = []
+    def sort_out(cand, kept: list) -> None:  # plausible: kept; else rejected with its reason
+        se.plausible_emitters(scene, [cand], pts, up_axis, mpu, cfg, floor)
+        (out.rejected if cand.rejected else kept).append(cand)
+
     for r in estimate_rect_lights(scene, centroid, rect_config, meters_per_unit=mpu):
         if len(rects) >= MAX_RECT_LIGHTS:
             break
-        se.plausible_emitters(scene, [r], pts, up_axis, mpu, cfg, floor)
-        if r.rejected:
-            out.rejected.append(r)
-        else:
-            rects.append(r)
+        sort_out(r, rects)
     names = [f"Rect_{i}" for i in range(len(rects))]
     slab, margin = RECT_SLAB / mpu, rect_config.link_distance / mpu
     # candidates in score order (the NMS order of paper 3.1): the first k plausible ones win
@@ -213,11 +213,7 @@ def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_
             c.rejected = f"part of the planar emitter {on[0]} (written as a RectLight, not as point lights)"
             out.rejected.append(c)
             continue
-        se.plausible_emitters(scene, [c], pts, up_axis, mpu, cfg, floor)
-        if c.rejected:
-            out.rejected.append(c)
-        else:
-            kept.append(c)
+        sort_out(c, kept)
     kept.sort(key=lambda c: -c.intensity)
     out.lights = [ShotLight(f"Light_{i}", "point", np.asarray(c.position, np.float64), color=np.asarray(c.color),
                             intensity=float(c.intensity), score=float(c.score)) for i, c in enumerate(kept)]
@@ -304,6 +300,15 @@ def sky_occlusion_params(proc, lights) -> tuple[float, float, float] | None:
     domes = [lt for lt in lights if lt.kind == "dome"]
     if not domes:
         return None
+    key = tuple((lt.name, lt.kind, lt.source, lt.intensity, tuple(np.asarray(lt.direction, np.float64)),
+                 tuple(np.asarray(lt.color, np.float64)), getattr(lt, "sky_occlusion", None)) for lt in lights)
+    cache = proc.__dict__.setdefault("_sky_occlusion_cache", {})
+    if key not in cache:
+        cache[key] = _sky_occlusion_params(proc, lights, domes)
+    return cache[key]
+
+
+def _sky_occlusion_params(proc, lights, domes) -> tuple[float, float, float]:
     for d in domes:
         got = getattr(d, "sky_occlusion", None)
         if got is None and d.source != "estimated":

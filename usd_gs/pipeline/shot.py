@@ -45,6 +45,7 @@ from usd_gs.relight.avatar import linear_faces, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
+from usd_gs.relight.sun_estimation import up_vector
 from usd_gs.resources import check_memory
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
@@ -267,10 +268,6 @@ class ShotProcessor:
         static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
         casters = Receivers.build([(p, self.static[p]) for p in static_casters])
         self._scene_block = casters.gaussians if static_casters else None
-        spheres = prim_spheres(casters, self.dgsm.k_sigma)
-        self._caster_ranges = [casters.ranges[p] for p in spheres]
-        self._caster_centres = np.array([spheres[p][0] for p in spheres]).reshape(-1, 3)
-        self._caster_radii = np.array([spheres[p][1] for p in spheres])
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
 
     # ------------------------------------------------------------------ per frame
@@ -333,8 +330,7 @@ class ShotProcessor:
         params = sky_occlusion_params(self, self.lights_used or [])
         if params is None or not self._casters_dyn or not self._static_recv.gaussians.count:
             return u, t_u, None
-        up = np.zeros(3)
-        up[1 if self.dgsm.up_axis == "Y" else 2] = 1.0
+        up = up_vector(self.dgsm.up_axis)
         if self._static_normals is None:  # once per shot: the static receivers do not move
             g = self._static_recv.gaussians
             self._static_normals = receiver_normals(g, np.arange(g.count))

@@ -132,8 +132,7 @@ class StaticSceneSunAtlas:
             s0, s1 = 0.0, 1.0
         self.ds = max(s1 - s0, 1e-6) / (self.K - 1)
         self.tb = s0 - 0.5 * self.ds
-        self.ids = np.zeros((0, 2), np.int64)  # computed lattice pixels (i, j), sorted by key
-        self.keys = np.zeros(0, np.int64)
+        self.keys = np.zeros(0, np.int64)  # computed lattice pixels (i, j) as sorted keys (_key)
         self.values = np.ones((0, self.K), np.float32)
         self.pairs = 0
         # each occluder's lattice coordinates and culling reach, in pixels (for _near)
@@ -199,7 +198,6 @@ class StaticSceneSunAtlas:
         keys_all = np.concatenate([self.keys, self._key(new)])
         order = np.argsort(keys_all, kind="stable")
         self.keys = keys_all[order]
-        self.ids = np.concatenate([self.ids, new])[order]
         self.values = np.concatenate([self.values, vals])[order]
 
     def transmittance(self, points) -> np.ndarray:
