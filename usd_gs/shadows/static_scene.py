@@ -27,6 +27,32 @@ import numpy as np
 from numba_kernels import dgsm_build, dgsm_sample
 from usd_gs.gaussians import GaussianSet
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
+from usd_gs.shadows.lattice_index import LatticeIndex
+
+
+class _ColumnStore:
+    """Append-only (M, K) float32 voxel columns in a buffer that doubles when full, so adding a
+    frame's new columns copies only them (not every column computed so far)."""
+
+    def __init__(self, K: int):
+        self._buf = np.ones((0, int(K)), np.float32)
+        self.size = 0
+
+    def append(self, cols: np.ndarray) -> int:
+        """Store ``cols`` (m, K); returns the row of the first one."""
+        m = cols.shape[0]
+        if self.size + m > self._buf.shape[0]:
+            grown = np.ones((max(2 * self._buf.shape[0], self.size + m, 1024), self._buf.shape[1]), np.float32)
+            grown[: self.size] = self._buf[: self.size]
+            self._buf = grown
+        self._buf[self.size: self.size + m] = cols
+        self.size += m
+        return self.size - m
+
+    @property
+    def values(self) -> np.ndarray:
+        """(M, K) view of the columns stored so far, in the order they were added."""
+        return self._buf[: self.size]
 
 
 class StaticSceneAtlas:
@@ -47,7 +73,7 @@ class StaticSceneAtlas:
         self.tiles = dgsm_build.bin_tiles(self.light, np.ascontiguousarray(self.occ[:, :3]), cov6, self.width,
                                           cfg.k_sigma, np.ones(wt * wt, np.bool_)) if self.count else None
         self.index = np.full(self.width * self.width, -1, np.int32)
-        self.values = np.ones((0, self.K), np.float32)
+        self._columns = _ColumnStore(self.K)
         self.pixels = np.zeros(0, np.int64)
         self.pairs = 0
         self.erf_evals = 0
@@ -56,6 +82,11 @@ class StaticSceneAtlas:
     def computed_pixels(self) -> int:
         """Number of atlas pixels (voxel columns) computed so far."""
         return int(self.pixels.size)
+
+    @property
+    def values(self) -> np.ndarray:
+        """(computed_pixels, K) float32 voxel columns, in the order of ``pixels``."""
+        return self._columns.values
 
     def _extend(self, points: np.ndarray) -> None:
         """Compute the voxel columns of ``points``' trilinear stencils that are not there yet."""
@@ -68,8 +99,8 @@ class StaticSceneAtlas:
         erfs = np.zeros(new.size, np.int64)
         dgsm_build.accumulate_pixels(self.light, self.occ, self.dir_dep, new, self.width, self.K, self.t_max, 0,
                                      self.K - 1, self.tiles, True, self.cfg.bin_skip, out, pairs, erfs)
-        self.index[new] = np.arange(self.pixels.size, self.pixels.size + new.size, dtype=np.int32)
-        self.values = np.concatenate([self.values, out]) if self.values.size else out
+        first = self._columns.append(out)
+        self.index[new] = np.arange(first, first + new.size, dtype=np.int32)
         self.pixels = np.concatenate([self.pixels, new])
         self.pairs += int(pairs.sum())
         self.erf_evals += int(erfs.sum())
@@ -132,8 +163,9 @@ class StaticSceneSunAtlas:
             s0, s1 = 0.0, 1.0
         self.ds = max(s1 - s0, 1e-6) / (self.K - 1)
         self.tb = s0 - 0.5 * self.ds
-        self.keys = np.zeros(0, np.int64)  # computed lattice pixels (i, j) as sorted keys (_key)
-        self.values = np.ones((0, self.K), np.float32)
+        self._index = LatticeIndex()  # computed lattice pixels (i, j) -> their rows in the store
+        self._pixels = np.zeros((0, 2), np.int64)  # (i, j) of the stored columns, in row order
+        self._columns = _ColumnStore(self.K)
         self.pairs = 0
         # each occluder's lattice coordinates and culling reach, in pixels (for _near)
         if self.count:
@@ -145,7 +177,17 @@ class StaticSceneSunAtlas:
     @property
     def computed_pixels(self) -> int:
         """Number of lattice pixels (voxel columns) computed so far."""
-        return int(self.keys.size)
+        return int(self._columns.size)
+
+    @property
+    def keys(self) -> np.ndarray:
+        """(computed_pixels,) int64 sorted keys (:meth:`_key`) of the computed lattice pixels."""
+        return np.sort(self._key(self._pixels))
+
+    @property
+    def values(self) -> np.ndarray:
+        """(computed_pixels, K) float32 voxel columns in the order of :attr:`keys`."""
+        return self._columns.values[np.argsort(self._key(self._pixels), kind="stable")]
 
     @staticmethod
     def _key(ij: np.ndarray) -> np.ndarray:
@@ -179,26 +221,26 @@ class StaticSceneSunAtlas:
         hits = sat[a1, b1] - sat[a0, b1] - sat[a1, b0] + sat[a0, b0]
         return np.flatnonzero(hits > 0)
 
-    def _extend(self, ij: np.ndarray) -> None:
+    def _rows(self, ij: np.ndarray) -> np.ndarray:
+        """(M,) rows in the column store of the lattice pixels ``ij`` (M, 2), computing the voxel
+        columns that are not there yet (each distinct pixel once)."""
         from numba_kernels import dgsm_directional as dd
 
-        keys = self._key(ij)
-        if self.keys.size:  # the columns already there first (a sorted search), then unique the rest
-            pos = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
-            miss = np.flatnonzero(self.keys[pos] != keys)
-            ij, keys = ij[miss], keys[miss]
-        _, first = np.unique(keys, return_index=True)
-        new = ij[first]
-        if new.shape[0] == 0:
-            return
+        rows = self._index.lookup(ij)
+        miss = np.flatnonzero(rows < 0)
+        if miss.size == 0:
+            return rows
+        _, first, inverse = np.unique(self._key(ij[miss]), return_index=True, return_inverse=True)
+        new = ij[miss[first]]
         near = self._near(new)
         vals, pairs = dd.lattice_columns(self.basis, self.occ[near], self.dir_dep, self.cov6[near], self.c, self.h,
                                          new, self.tb, self.ds, self.K, self.cfg.k_sigma, self.cfg.bin_skip)
         self.pairs += pairs
-        keys_all = np.concatenate([self.keys, self._key(new)])
-        order = np.argsort(keys_all, kind="stable")
-        self.keys = keys_all[order]
-        self.values = np.concatenate([self.values, vals])[order]
+        start = self._columns.append(vals)
+        self._index.insert(new, np.arange(start, start + new.shape[0], dtype=np.int64))
+        self._pixels = np.concatenate([self._pixels, new])
+        rows[miss] = start + inverse.reshape(-1)
+        return rows
 
     def transmittance(self, points) -> np.ndarray:
         """(M,) float64 transmittance at ``points`` (M, 3) (scene units, world space)."""
@@ -210,15 +252,15 @@ class StaticSceneSunAtlas:
         i0, j0, wx, wy, k0, wk = self._stencils(pts)
         corners = [(di, dj) for di in (0, 1) for dj in (0, 1)]
         ij = np.concatenate([np.stack([i0 + di, j0 + dj], 1) for di, dj in corners])
-        self._extend(ij)
-        rows = np.searchsorted(self.keys, self._key(ij)).reshape(4, -1)
+        rows = self._rows(ij).reshape(4, -1)
+        store = self._columns.values
         out = np.zeros(pts.shape[0])
         lo = np.full(pts.shape[0], np.inf)
         hi = np.full(pts.shape[0], -np.inf)
         for n, (di, dj) in enumerate(corners):
             w_ij = (wx if di else 1.0 - wx) * (wy if dj else 1.0 - wy)
             for dk in (0, 1):
-                v = self.values[rows[n], k0 + dk].astype(np.float64)
+                v = store[rows[n], k0 + dk].astype(np.float64)
                 out += w_ij * (wk if dk else 1.0 - wk) * v
                 lo = np.minimum(lo, v)
                 hi = np.maximum(hi, v)
