@@ -21,7 +21,7 @@ def test_lookups_equal_a_dict_as_the_index_grows():
         new = new[[(int(i), int(j)) not in ref for i, j in new]]
         rows = np.arange(row, row + len(new))
         index.insert(new, rows)
-        ref.update({(int(i), int(j)): int(r) for (i, j), r in zip(new, rows)})
+        ref.update({(int(i), int(j)): int(r) for (i, j), r in zip(new, rows, strict=True)})
         row += len(new)
     every = np.array(list(ref), np.int64)
     np.testing.assert_array_equal(index.lookup(every), np.array(list(ref.values())))

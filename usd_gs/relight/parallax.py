@@ -22,7 +22,7 @@ the SH projection ``a_lm = sum_t L_t Y_lm(d'_t) w'_t`` (real SH, the RH basis of
 ``numba_kernels.sh_real``), which is exactly the quadrature that the irradiance
 ``sum_t L_t max(0, n.d'_t) w'_t`` needs. Occlusion between texels as seen from ``x`` (a prop
 moved in front of sky the centre saw beside it) is tested with a z-buffer of the reprojected
-texels (:func:`_occlusion_weights`). What this does not model: surfaces hidden from ``c`` but
+texels (``numba_kernels.probe_reprojection``). What this does not model: surfaces hidden from ``c`` but
 visible from ``x`` (they are missing).
 
 The probe points are the centres of ``k`` clusters of the avatar's Gaussians (k-means on the
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 OCCLUSION_SIZE = 32
-"""Face size of the occlusion test's z-buffer (:func:`_occlusion_weights`; the default probe
+"""Face size of the occlusion test's z-buffer (:func:`reprojected_probes`; the default probe
 render's size, ``ProcessOptions.probe_size``). The choice and its measured effect on the
 known-light ground truth: docs/design.md, "Parallax probes"."""
 _DISC = 0.75
@@ -129,48 +129,18 @@ def _surface_difference(pts: np.ndarray, r: np.ndarray, axis: int):
 
 def reprojected_probes(tex: CubeTexels, points, degree: int,
                        occlusion_size: int | None = OCCLUSION_SIZE) -> np.ndarray:
-    """(K, (degree+1)^2, 3) float64 RH SH radiance probes at ``points`` (K, 3) (module doc).
-    A point at the centre gives the plain projection of the render. ``occlusion_size``: face
-    size of the z-buffer of the occlusion test at each point (:func:`_occlusion_weights`;
-    None: none, every texel counts)."""
-    from numba_kernels.sh_real import eval_basis_rh_numpy
+    """(K, (degree+1)^2, 3) float64 RH SH radiance probes at ``points`` (K, 3) (module doc;
+    ``numba_kernels.probe_reprojection``, the points in parallel). A point at the centre gives
+    the plain projection of the render. ``occlusion_size``: face size of the z-buffer of the
+    occlusion test at each point (None: none, every texel counts)."""
+    from numba_kernels.probe_reprojection import reproject_probes
 
-    pts = np.asarray(points, np.float64).reshape(-1, 3)
     live = tex.weight > 0
-    lum, d, r, w = tex.radiance[live], tex.dirs[live], tex.dist[live], tex.weight[live]
-    p, nrm, cos_c = tex.points[live], tex.normals[live], tex.cos_c[live]
-    out = np.empty((pts.shape[0], (degree + 1) ** 2, 3))
-    for k, x in enumerate(pts):  # one point at a time: faster than (K, T) temporaries (measured)
-        v = p - x
-        dist = np.sqrt(np.einsum("ij,ij->i", v, v))
-        ok = dist > 1e-9 * np.maximum(r, 1.0)
-        dn = np.where(ok[:, None], v / np.where(ok, dist, 1.0)[:, None], d)
-        cos_x = -np.einsum("ij,ij->i", nrm, dn)
-        ratio = np.minimum((np.maximum(cos_x, 0.0) + _MIN_COS) / (cos_c + _MIN_COS), _MAX_RATIO)
-        wx = w * np.where(ok, (r / np.where(ok, dist, 1.0)) ** 2 * ratio, 0.0)
-        if occlusion_size is not None:
-            wx = _occlusion_weights(dn, dist, wx, int(occlusion_size), cos_x)
-        out[k] = eval_basis_rh_numpy(dn, degree).T @ (lum * wx[:, None])
-    return out
+    return reproject_probes(points, tex.points[live], tex.normals[live], tex.dirs[live], tex.dist[live],
+                            tex.weight[live], tex.cos_c[live], tex.radiance[live], int(degree),
+                            0 if occlusion_size is None else int(occlusion_size), _MIN_COS, _MAX_RATIO, _DISC,
+                            _MIN_SPLAT_COS, _SAME_LAYER)
 
-
-def _occlusion_weights(dirs: np.ndarray, dist: np.ndarray, weight: np.ndarray, size: int,
-                   cos_x: np.ndarray) -> np.ndarray:
-    """Occlusion between reprojected texels as seen from the new point: each texel is a disc of
-    directions around ``dirs`` with its solid angle ``weight`` (angular radius
-    ``_DISC sqrt(weight)``, at most 0.5 rad; none for texels seen at ``cos_x <=
-    _MIN_SPLAT_COS``) at distance ``dist``, drawn into a ``size``^2 cube z-buffer of nearest
-    distances (``numba_kernels.direction_zbuffer``); a texel whose own direction is covered by a
-    disc nearer than ``dist / (1 + _SAME_LAYER)`` is hidden (weight 0). At the centre the texels
-    do not overlap (a texel's disc reaches 0.75 texel, not its neighbours' centres) and nothing
-    changes. Without the test a leg sees both a prop and the sky behind it
-    (the prop's patches moved in front of sky texels that the centre saw beside the prop): too
-    bright by the prop's solid angle. Returns the kept weights (T,)."""
-    from numba_kernels.direction_zbuffer import nearest_over_own_direction
-
-    rad = np.where(cos_x > _MIN_SPLAT_COS, np.minimum(_DISC * np.sqrt(np.maximum(weight, 0.0)), 0.5), 0.0)
-    hidden = nearest_over_own_direction(dirs, dist, rad, size) * (1.0 + _SAME_LAYER) < dist
-    return np.where(hidden, 0.0, weight)
 
 def probe_clusters(positions: np.ndarray, k: int, iterations: int = 12, sample: int = 4096,
                    seed: int = 0) -> np.ndarray:
