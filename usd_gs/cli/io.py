@@ -87,7 +87,7 @@ class _Background:
 def _start_sog_decode(path: str, lod: int | None):
     """For a SOG input: its manifests read here, then its images decoded in a background thread
     (libwebp and numpy release the GIL) into the Vt arrays that will be written, while this
-    thread imports the rest of pxr. Returns the :class:`_Background` reader, or None for other
+    thread imports pxr.Sdf and makes the output layer. Returns the :class:`_Background` reader, or None for other
     formats (read after the imports).
 
     pxr's imports must not overlap with another thread's calls into pxr (seen: 'cannot import
@@ -146,16 +146,15 @@ def cmd_import(args) -> int:
     try:
         path = prim_path(args.prim or default_prim_path(args.input))
         from usd_gs.usd.bulk import vt_backed_empty
-        from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
-        from usd_gs.usd.schema import apply_role
+        from usd_gs.usd.gaussian_layer import new_layer, save_stage_atomic, write_gaussian_layer
 
         root = path.GetPrefixes()[0]
-        stage = new_stage(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
+        layer = new_layer(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
     finally:
         gaussians = None if reader is None else _join(reader)
     if sequence:
-        what = _import_sequence(args, stage, path)
-        save_stage_atomic(stage, args.output)
+        what = _import_sequence(args, _stage_on(layer), path)
+        save_stage_atomic(layer, args.output)
         if not args.quiet:
             print(f"wrote {args.output}: {what}")
         return 0
@@ -168,18 +167,30 @@ def cmd_import(args) -> int:
     if args.brick_size is not None:
         from usd_gs.usd.bricks import write_bricked
 
-        n = len(write_bricked(stage, str(path), gaussians, args.brick_size, keep_raw=not args.no_raw,
+        n = len(write_bricked(_stage_on(layer), str(path), gaussians, args.brick_size, keep_raw=not args.no_raw,
                               precision=args.precision, role=args.role))
         bricks = f" in {n} bricks"
     else:
-        prim = write_gaussian_prim(stage, str(path), gaussians, keep_raw=not args.no_raw, precision=args.precision)
+        # one prim in a new layer: written with Sdf alone (pxr.Usd is imported only for --role);
+        # the same specs as write_gaussian_prim on a stage (tests/test_import_layer.py)
+        write_gaussian_layer(layer, str(path), gaussians, keep_raw=not args.no_raw, precision=args.precision)
         if args.role:
-            apply_role(prim, args.role)
-    save_stage_atomic(stage, args.output)
+            from usd_gs.usd.schema import apply_role
+
+            stage = _stage_on(layer)  # (held: a prim of a freed stage is expired)
+            apply_role(stage.GetPrimAtPath(path), args.role)
+    save_stage_atomic(layer, args.output)
     if not args.quiet:
         print(f"wrote {args.output}: {path} with {gaussians.count:,} Gaussians{bricks}, SH degree "
               f"{gaussians.sh_degree}, {args.precision} precision")
     return 0
+
+
+def _stage_on(layer):
+    """A stage whose root layer is ``layer`` (what it authors goes there)."""
+    from pxr import Usd
+
+    return Usd.Stage.Open(layer)
 
 
 def register_import(sub, formatter):
@@ -218,7 +229,7 @@ def register_import(sub, formatter):
     p.add_argument("--no-raw", action="store_true",
                    help="do not keep the raw PLY values (smaller file; round trip no longer bit-exact)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
-    p.set_defaults(handler=cmd_import)
+    p.set_defaults(handler=cmd_import, quick_exit=True)
 
 
 # ----------------------------------------------------------------------------- export

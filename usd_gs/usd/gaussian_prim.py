@@ -22,63 +22,48 @@ All bulk data moves through ``Vt.*Array.FromNumpy`` / ``np.asarray`` (zero-copy 
 
 from __future__ import annotations
 
-import os
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt
+from pxr import Sdf, Usd, UsdGeom, UsdVol
 
 from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, InputFormatError, UserError, first_bad_index
 from usd_gs.gaussians import GaussianSet
-from usd_gs.io.atomic import atomic_output
 from usd_gs.usd import skel as _skel
 from usd_gs.usd.attr_types import require_types
-from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy
 from usd_gs.usd.frames import as_time
+from usd_gs.usd.gaussian_layer import (  # noqa: F401 - the write side's names, re-exported here
+    DATA_ATTRS,
+    DTYPE_KEY,
+    EXTENT,
+    GS_TYPE,
+    HALF_SUFFIX,
+    OPACITIES,
+    ORIENTATIONS,
+    PLY_PREFIX,
+    POSITIONS,
+    RAW_LOG_SCALES,
+    RAW_LOGIT_OPACITIES,
+    SCALES,
+    SH_COEFFS,
+    SH_DEGREE,
+    SH_DEGREE_FALLBACK,
+    _all_finite,
+    _check_finite,
+    author_gaussian_spec,
+    check_gaussians,
+    check_precision,
+    file_format_args,
+    gaussian_prim_path,
+    gaussian_values,
+    new_layer,
+    save_stage_atomic,
+)
 from usd_gs.usd.schema import RoleInfo, read_role, register_plugins
 
 register_plugins()
-
-GS_TYPE = "ParticleField3DGaussianSplat"
-
-POSITIONS = "positions"
-ORIENTATIONS = "orientations"
-SCALES = "scales"
-OPACITIES = "opacities"
-SH_COEFFS = "radiance:sphericalHarmonicsCoefficients"
-SH_DEGREE = "radiance:sphericalHarmonicsDegree"
-EXTENT = "extent"
-HALF_SUFFIX = "h"
-SH_DEGREE_FALLBACK = 3
-
-RAW_LOG_SCALES = "usdgs:rawLogScales"
-RAW_LOGIT_OPACITIES = "usdgs:rawLogitOpacities"
-PLY_PREFIX = "usdgs:ply:"
-DTYPE_KEY = "usdgs:dtype"
-
-#: per-particle data attributes (float names); the half name is name + "h"
-DATA_ATTRS = (POSITIONS, ORIENTATIONS, SCALES, OPACITIES, SH_COEFFS)
-
-_T = Sdf.ValueTypeNames
-_FLOAT_TYPES = {POSITIONS: (_T.Point3fArray, Vt.Vec3fArray), ORIENTATIONS: (_T.QuatfArray, Vt.QuatfArray),
-                SCALES: (_T.Float3Array, Vt.Vec3fArray), OPACITIES: (_T.FloatArray, Vt.FloatArray),
-                SH_COEFFS: (_T.Float3Array, Vt.Vec3fArray)}
-_HALF_TYPES = {POSITIONS: (_T.Point3hArray, Vt.Vec3hArray), ORIENTATIONS: (_T.QuathArray, Vt.QuathArray),
-               SCALES: (_T.Half3Array, Vt.Vec3hArray), OPACITIES: (_T.HalfArray, Vt.HalfArray),
-               SH_COEFFS: (_T.Half3Array, Vt.Vec3hArray)}
-#: numpy dtype -> (Sdf scalar array type, Vt array class) for usdgs:ply:* extras
-_EXTRA_TYPES = {
-    np.dtype(np.float32): (_T.FloatArray, Vt.FloatArray), np.dtype(np.float64): (_T.DoubleArray, Vt.DoubleArray),
-    np.dtype(np.float16): (_T.HalfArray, Vt.HalfArray), np.dtype(np.int32): (_T.IntArray, Vt.IntArray),
-    np.dtype(np.uint32): (_T.UIntArray, Vt.UIntArray), np.dtype(np.int64): (_T.Int64Array, Vt.Int64Array),
-    np.dtype(np.uint64): (_T.UInt64Array, Vt.UInt64Array), np.dtype(np.uint8): (_T.UCharArray, Vt.UCharArray),
-    # no 8/16-bit signed or 16-bit unsigned USD arrays: widen to int, dtype kept in customData
-    np.dtype(np.int8): (_T.IntArray, Vt.IntArray), np.dtype(np.int16): (_T.IntArray, Vt.IntArray),
-    np.dtype(np.uint16): (_T.IntArray, Vt.IntArray),
-}
 
 
 # --------------------------------------------------------------------------- helpers
@@ -173,21 +158,6 @@ def find_gaussian_prims(stage: Usd.Stage) -> list[Usd.Prim]:
     prims = [p for p in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)) if is_gaussian_prim(p)]
     prims.sort(key=lambda p: p.GetPath().pathString)
     return prims
-
-
-def _all_finite(arr: np.ndarray) -> bool:
-    """True when every element of the float array is finite (one flat pass)."""
-    return arr.size == 0 or bool(np.isfinite(arr.reshape(-1)).all())
-
-
-def _check_finite(arr: np.ndarray, where: str, name: str) -> None:
-    if _all_finite(arr):  # fast path
-        return
-    bad = ~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1)
-    if bad.any():
-        i = first_bad_index(bad)
-        raise GaussianDataError(f"{where}: attribute '{name}' element {i} is not finite "
-                                f"(value {np.array2string(arr[i], precision=6)}; {int(bad.sum())} bad elements)")
 
 
 def _degree(prim: Usd.Prim) -> tuple[int, bool]:
@@ -507,24 +477,6 @@ def _define_ancestors(stage: Usd.Stage, path: Sdf.Path) -> None:
         UsdGeom.Xform.Define(stage, p)
 
 
-def _attr_spec(prim_spec: Sdf.PrimSpec, name: str, type_name, custom: bool,
-               variability=Sdf.VariabilityVarying) -> Sdf.AttributeSpec:
-    spec = prim_spec.layer.GetAttributeAtPath(prim_spec.path.AppendProperty(name))
-    if spec is None:
-        spec = Sdf.AttributeSpec(prim_spec, name, type_name, variability, custom)
-    elif spec.typeName != type_name:
-        raise UserError(f"{prim_spec.path}: attribute '{name}' already has type {spec.typeName}, "
-                        f"cannot write {type_name}")
-    return spec
-
-
-def _put(layer: Sdf.Layer, spec: Sdf.AttributeSpec, value, time: Usd.TimeCode | None) -> None:
-    if time is None or time.IsDefault():
-        spec.default = value
-    else:
-        layer.SetTimeSample(spec.path, time.GetValue(), value)
-
-
 def write_gaussian_prim(stage: Usd.Stage, path, gaussians: GaussianSet, time=None, keep_raw: bool = True,
                         precision: str = "float") -> Usd.Prim:
     """Define (or update) a conformant ``ParticleField3DGaussianSplat`` at ``path``.
@@ -543,23 +495,14 @@ def write_gaussian_prim(stage: Usd.Stage, path, gaussians: GaussianSet, time=Non
     ancestors are defined as ``Xform``; existing ones are left (in an output layer they
     become ``over`` specs). Writes into the stage's edit target.
     """
-    if precision not in ("float", "half"):
-        raise UserError(f"precision must be 'float' or 'half', not '{precision}'")
-    path = Sdf.Path(str(path))
-    if not path.IsPrimPath():
-        raise UserError(f"'{path}' is not a valid absolute prim path")
+    check_precision(precision)
+    path = gaussian_prim_path(path)
     tc = None if time is None else as_time(time)
     if tc is not None and tc.IsDefault():
         tc = None
     g = gaussians
-    n = g.count
     degree = g.sh_degree
-    k = sh3dgs.num_coeffs(degree)
-    label = str(path)
-
-    for name, arr in (("positions", g.positions), ("orientations", g.orientations), ("scales", g.scales),
-                      ("opacities", g.opacities), ("sh", g.sh)):
-        _check_finite(arr, f"{label}: cannot write Gaussians", name)
+    check_gaussians(g, path)
 
     existing = stage.GetPrimAtPath(path)
     if existing and existing.IsDefined() and existing.GetTypeName() not in ("", GS_TYPE):
@@ -575,133 +518,24 @@ def write_gaussian_prim(stage: Usd.Stage, path, gaussians: GaussianSet, time=Non
                     raise UserError(f"{path}: attribute '{name}' has float values that readers prefer over "
                                     f"'{name}{HALF_SUFFIX}'; cannot write half precision here")
 
+    values = gaussian_values(g, path, keep_raw, precision)
     _define_ancestors(stage, path)
     prim = UsdVol.ParticleField3DGaussianSplat.Define(stage, path).GetPrim()
     edit_target = stage.GetEditTarget()
-    layer = edit_target.GetLayer()
-    spec_path = edit_target.MapToSpecPath(path)
-
-    # Bulk arrays are converted before the change block (FromNumpy copies once).
-    types = _FLOAT_TYPES if precision == "float" else _HALF_TYPES
-    dt = np.float32 if precision == "float" else np.float16
-    quat_xyzw = np.empty((n, 4), dt)
-    quat_xyzw[:, :3] = g.orientations[:, 1:]
-    quat_xyzw[:, 3] = g.orientations[:, 0]
-    values = {
-        POSITIONS: g.positions.astype(dt, copy=False),
-        ORIENTATIONS: quat_xyzw,
-        SCALES: g.scales.astype(dt, copy=False),
-        OPACITIES: g.opacities.astype(dt, copy=False),
-        SH_COEFFS: g.sh.astype(dt, copy=False).reshape(n * k, 3),
-    }
-    if precision == "half":
-        _check_half(values, {POSITIONS: g.positions, ORIENTATIONS: g.orientations[:, [1, 2, 3, 0]],
-                             SCALES: g.scales, OPACITIES: g.opacities, SH_COEFFS: g.sh.reshape(n * k, 3)}, label)
-    vt_values = {name: vt_from_numpy(types[name][1], arr) for name, arr in values.items()}
-    extent = Vt.Vec3fArray.FromNumpy(gaussian_extent(g, 3.0))  # == g.extent(3.0), bit for bit
-    raw = []
-    if keep_raw:
-        if g.log_scales is not None:
-            raw.append((RAW_LOG_SCALES, _T.Float3Array, vt_from_numpy(Vt.Vec3fArray, g.log_scales), None))
-        if g.logit_opacities is not None:
-            raw.append((RAW_LOGIT_OPACITIES, _T.FloatArray, Vt.FloatArray.FromNumpy(g.logit_opacities), None))
-        for field, arr in g.extras.items():
-            name = PLY_PREFIX + field
-            if not Sdf.Path.IsValidNamespacedIdentifier(name):
-                raise UserError(f"{path}: extra field '{field}' is not a valid USD attribute name")
-            a = np.asarray(arr)
-            if a.dtype not in _EXTRA_TYPES:
-                raise UserError(f"{path}: extra field '{field}' has dtype {a.dtype}, which has no USD array type")
-            sdf_type, vt_cls = _EXTRA_TYPES[a.dtype]
-            store = a.reshape(-1)
-            if vt_cls is Vt.IntArray and a.dtype != np.int32:
-                store = store.astype(np.int32)
-            widened = str(a.dtype) if store.dtype != a.dtype else None
-            raw.append((name, sdf_type, vt_cls.FromNumpy(np.ascontiguousarray(store)), widened))
-
-    with Sdf.ChangeBlock():
-        prim_spec = layer.GetPrimAtPath(spec_path) or Sdf.CreatePrimInLayer(layer, spec_path)
-        for name in DATA_ATTRS:
-            attr_name = name if precision == "float" else name + HALF_SUFFIX
-            spec = _attr_spec(prim_spec, attr_name, types[name][0], custom=False)
-            _put(layer, spec, vt_values[name], tc)
-            if name == SH_COEFFS:
-                spec.SetInfo("interpolation", UsdGeom.Tokens.vertex)
-                spec.SetInfo("elementSize", k)
-        d_spec = _attr_spec(prim_spec, SH_DEGREE, _T.Int, custom=False, variability=Sdf.VariabilityUniform)
-        d_spec.default = degree
-        _put(layer, _attr_spec(prim_spec, EXTENT, _T.Float3Array, custom=False), extent, tc)
-        for name, sdf_type, value, dtype in raw:
-            spec = _attr_spec(prim_spec, name, sdf_type, custom=True)
-            if dtype is not None:
-                spec.customData = {"usdgs": {"dtype": dtype}}  # read back as 'usdgs:dtype'
-            _put(layer, spec, value, tc)
+    author_gaussian_spec(edit_target.GetLayer(), edit_target.MapToSpecPath(path), values, tc)
     return prim
 
 
 # --------------------------------------------------------------------------- stages and files
-def _check_half(halves: dict, floats: dict, label: str) -> None:
-    """``UserError`` naming the attribute and first element whose value does not survive the cast
-    to half: beyond +/-65504 (it would be stored as inf) or a positive scale that becomes 0."""
-    for name, h in halves.items():
-        f = floats[name]
-        bad = ~np.isfinite(h) if name != SCALES else ~np.isfinite(h) | ((h <= 0) & (f > 0))
-        if bad.any():
-            i = first_bad_index(bad.reshape(len(bad), -1))
-            raise UserError(f"{label}: attribute '{name}{HALF_SUFFIX}' element {i} is "
-                            f"{np.array2string(np.asarray(f[i]), precision=6)}, which half precision cannot hold "
-                            f"(|value| <= 65504, scales >= 6e-8; {int(bad.reshape(len(bad), -1).any(axis=1).sum())} "
-                            "such elements); use --precision float")
-
-
-def file_format_args(path) -> tuple[Sdf.FileFormat, dict]:
-    """(Sdf file format, export args) for an output path: ``.usda`` text, ``.usd``/``.usdc`` crate."""
-    ext = Path(str(path)).suffix.lower().lstrip(".")
-    if ext not in ("usd", "usda", "usdc"):
-        raise UserError(f"{path}: output must end in .usd, .usdc or .usda")
-    fmt = Sdf.FileFormat.FindByExtension(ext)
-    return fmt, ({"format": "usdc"} if ext == "usd" else {})
-
-
 def new_stage(path=None, up_axis: str = "Y", meters_per_unit: float = 1.0,
               default_prim: str | None = None) -> Usd.Stage:
-    """A new in-memory stage (root layer anonymous; nothing is written until
-    :func:`save_stage_atomic`). ``path`` only selects/validates the output format.
+    """A new in-memory stage (root layer anonymous, :func:`~usd_gs.usd.gaussian_layer.new_layer`;
+    nothing is written until :func:`save_stage_atomic`). ``path`` only selects/validates the
+    output format.
 
     ``up_axis`` 'Y' or 'Z'; ``meters_per_unit`` > 0; ``default_prim`` a root prim name
     (the prim may be defined later).
     """
     if path is not None:
         file_format_args(path)
-    if up_axis not in ("Y", "Z"):
-        raise UserError(f"up axis must be 'Y' or 'Z', not '{up_axis}'")
-    if not (meters_per_unit > 0 and np.isfinite(meters_per_unit)):
-        raise UserError(f"metersPerUnit must be a positive number, not {meters_per_unit}")
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
-    if default_prim:
-        stage.GetRootLayer().defaultPrim = default_prim.lstrip("/")
-    return stage
-
-
-def save_stage_atomic(stage_or_layer, path, durable: bool = False, _export=None) -> Path:
-    """Write a stage's root layer (or an ``Sdf.Layer``) to ``path`` atomically.
-
-    Format by extension (``.usd``/``.usdc`` crate, ``.usda`` text). The layer is exported to
-    a temporary file in the same directory, then ``os.replace``d onto ``path``: an
-    interrupted or failed write leaves no partial file and an existing ``path`` intact.
-    ``durable`` also fsyncs the file before the rename (survives power loss; about 0.2 s
-    per 250 MB). Returns the absolute path. (``_export`` is a test hook.)
-    """
-    layer = stage_or_layer.GetRootLayer() if isinstance(stage_or_layer, Usd.Stage) else stage_or_layer
-    path = Path(os.path.abspath(os.fspath(path)))
-    _, args = file_format_args(path)
-    if not path.parent.is_dir():
-        raise UserError(f"{path}: directory {path.parent} does not exist")
-    export = _export or (lambda lyr, p, a: lyr.Export(p, args=a))
-    with atomic_output(path, durable=durable) as tmp:
-        if not export(layer, str(tmp), args):
-            raise UserError(f"{path}: USD failed to write the layer")
-    return path
-
+    return Usd.Stage.Open(new_layer(up_axis, meters_per_unit, default_prim))
