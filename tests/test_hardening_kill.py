@@ -26,9 +26,13 @@ _CHILD = """
 import sys
 sys.path.insert(0, {tests!r})
 import numpy, pxr.Usd  # noqa: F401  (imports done before 'ready': the kill lands in the command)
+import signal
 from usd_gs.cli import main
 print("ready", flush=True)
-sys.exit(main({argv!r}))
+rc = main({argv!r})
+# a signal after the command returned is not the command's to handle: held until the exit
+signal.pthread_sigmask(signal.SIG_BLOCK, {{signal.SIGINT, signal.SIGTERM}})
+sys.exit(rc)
 """
 
 

@@ -26,6 +26,7 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ from pxr import Usd, UsdGeom
 
 from numba_kernels.cubemap_dirs import cube_face_solid_angles
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
+from numba_kernels.thread_chunks import thread_count
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
@@ -41,13 +43,13 @@ from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, s
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.appearance import read_appearance
-from usd_gs.relight.avatar import linear_faces, relight_factors
+from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.sun_estimation import up_vector
 from usd_gs.resources import check_memory
-from usd_gs.shadows.dgsm import prepare_occluders
+from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
 from usd_gs.shadows.shot import (
     Receivers,
@@ -57,7 +59,7 @@ from usd_gs.shadows.shot import (
     receiver_points,
     shared_transmittance,
 )
-from usd_gs.shadows.sky_occlusion import receiver_normals, static_sky_factors
+from usd_gs.shadows.sky_occlusion import hidden_sky_shares, receiver_normals, sky_factors_from_shares
 from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, StaticSceneAtlas, StaticSceneSunAtlas
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
@@ -129,6 +131,33 @@ class _MovingCasters:
     packed: dict
     bound: dict
     receiver_spheres: dict
+
+
+def run_tasks(tasks: list) -> list:
+    """The results of ``tasks`` (callables without arguments), in their order: in up to
+    ``thread_count()`` threads (the kernels they call run their own chunks in the shared kernel
+    pool, numpy releases the GIL), or one after the other with one thread."""
+    workers = min(len(tasks), thread_count())
+    if workers <= 1:
+        return [task() for task in tasks]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="usdgs-task") as pool:
+        return list(pool.map(lambda task: task(), tasks))
+
+
+def _self_shadow_task(g, part, light, cfg: DGSMConfig):
+    """``(idx, T)`` of a prim's self-shadow samples ``part`` through its own DGSM (``cfg``'s kappa)."""
+    (idx, val), = shared_transmittance(g, [part], light, cfg, prepare_occluders(g, cfg))
+    return idx, val
+
+
+def _scene_task(block, drecv: Receivers, light, cfg: DGSMConfig, bias: float, atlas):
+    """``(idx, T)`` of the moving receivers in the static scene's shot-long ``atlas``, or None."""
+    part = receiver_points(block, drecv, light, cfg, roi="all", bias=bias)
+    if part is None:
+        return None
+    return part[0], atlas.transmittance(part[1])
 
 
 class ShotProcessor:
@@ -280,15 +309,22 @@ class ShotProcessor:
         self.clock.add("read", t)
         lights = self._lights(frame)
         self.lights_used = lights
-        shadows = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"])
         t = time.perf_counter()
-        relit = self._relight_pass(dyn, sets, frame, author, probe_dir, lights, shadows)
+        jobs = self._relight_jobs(dyn, sets, frame, lights)
+        self.clock.add("relight", t)
+        # the probe renders and transfers need no shadow map: they run beside the shadow tasks
+        shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
+                                               [partial(probe_transfer, **job) for _, job in jobs])
+        t = time.perf_counter()
+        relit = self._relight_pass(jobs, transfers, frame, author, probe_dir, lights, shadows)
         t = self.clock.add("relight", t)
         self._author_pass(frame, author, sets, shadows, relit)
         self.clock.add("write", t)
 
-    def _shadow_pass(self, sets: dict, lights: list[ShotLight]) -> FrameShadows:
-        """Every light's transmittance on every receiver, combined by the lights' shares."""
+    def _shadow_pass(self, sets: dict, lights: list[ShotLight], extra=()) -> tuple[FrameShadows, list]:
+        """Every light's transmittance on every receiver, combined by the lights' shares; ``extra``
+        tasks (callables without arguments, e.g. the probe renders) run in the same threads as the
+        shadow tasks. Returns ``(shadows, the extra tasks' results)``."""
         clk = self.clock
         t = time.perf_counter()
         srecv = self._static_recv
@@ -304,9 +340,17 @@ class ShotProcessor:
         movers = _MovingCasters(packed, bound, dspheres)
         self._self_vis = {}  # this frame's self-shadowing of relit prims: (prim, id(light)) -> (N_moving,)
         s_light, d_light, touched = [], [], []
-        for light in lights:
-            ts, td, hits = self._moving_caster_shadows(light, sets, drecv, movers)
-            self._scene_shadows_on_moving(light, sets, drecv, td)
+        # every light's casters, self-shadows and static-scene lookups side by side in threads
+        # (their serial parts overlap), combined in a fixed order: the values of a serial run
+        work = [self._light_tasks(light, sets, drecv, movers) for light in lights]
+        extra = list(extra)
+        sky = self._sky_task(sets)
+        results = run_tasks(extra + [sky or (lambda: None)] + [task for tasks, _ in work for task in tasks])
+        extra, shares, results = results[:len(extra)], results[len(extra)], results[len(extra) + 1:]
+        start = 0
+        for tasks, apply in work:
+            ts, td, hits = apply(results[start:start + len(tasks)])
+            start += len(tasks)
             s_light.append(ts)
             d_light.append(td)
             touched.extend(hits)
@@ -318,24 +362,31 @@ class ShotProcessor:
             t_static_u = combine_lights(per, light_shares(lights, srecv.gaussians.positions[u]))
         t_dyn = (combine_lights(d_light, light_shares(lights, drecv.gaussians.positions)) if lights
                  else np.ones(drecv.gaussians.count, np.float32))
-        u, t_static_u, sky_u = self._sky_hidden(sets, u, t_static_u)
+        u, t_static_u, sky_u = self._sky_hidden(shares, u, t_static_u)
         clk.add("shadows", t)
-        return FrameShadows(drecv, u, t_static_u, t_dyn, d_light, sky_u)
+        return FrameShadows(drecv, u, t_static_u, t_dyn, d_light, sky_u), extra
 
-    def _sky_hidden(self, sets: dict, u: np.ndarray, t_u: np.ndarray):
-        """The sky the moving casters hide from the static receivers around them
-        (``usd_gs.shadows.sky_occlusion``) when the shot's lights hold a sky: ``(touched, their
-        transmittance, their sky factor or None)``, the touched set widened by the receivers
-        the sky part alone darkens (transmittance 1)."""
+    def _sky_task(self, sets: dict):
+        """The frame's ``hidden_sky_shares`` as a task (``usd_gs.shadows.sky_occlusion``: the sky the
+        moving casters hide from the static receivers around them) when the shot's lights hold a
+        sky, else None."""
         params = sky_occlusion_params(self, self.lights_used or [])
         if params is None or not self._casters_dyn or not self._static_recv.gaussians.count:
-            return u, t_u, None
+            return None
         up = up_vector(self.dgsm.up_axis)
         if self._static_normals is None:  # once per shot: the static receivers do not move
             g = self._static_recv.gaussians
             self._static_normals = receiver_normals(g, np.arange(g.count))
-        idx, k = static_sky_factors([sets[q] for q in self._casters_dyn], self._static_recv, self._spheres, up,
-                                    params, self.opts.sh_tolerance, sun_t=(u, t_u), normals=self._static_normals)
+        return partial(hidden_sky_shares, [sets[q] for q in self._casters_dyn], self._static_recv, self._spheres, up,
+                       params, self.opts.sh_tolerance, normals=self._static_normals)
+
+    def _sky_hidden(self, shares, u: np.ndarray, t_u: np.ndarray):
+        """``(touched, their transmittance, their sky factor or None)`` from :meth:`_sky_task`'s
+        ``shares`` (None: no sky): the touched set widened by the receivers the sky part alone
+        darkens (transmittance 1)."""
+        if shares is None:
+            return u, t_u, None
+        idx, k = sky_factors_from_shares(shares, sky_occlusion_params(self, self.lights_used or []), sun_t=(u, t_u))
         if idx.size == 0:
             return u, t_u, np.ones(u.size, np.float32)
         both = np.union1d(u, idx)
@@ -345,65 +396,84 @@ class ShotProcessor:
         k2[np.searchsorted(both, idx)] = k
         return both, t2, k2
 
-    def _moving_caster_shadows(self, light, sets: dict, drecv: Receivers, movers: _MovingCasters):
-        """One light: every moving caster's DGSM sampled on the static receivers in its beam and
-        on the other moving receivers. Returns (static transmittance, moving transmittance, the
-        static receivers some caster shadows)."""
+    def _light_tasks(self, light, sets: dict, drecv: Receivers, movers: _MovingCasters):
+        """One light's shadow work as independent tasks (callables without arguments, which read no
+        USD and change no cache but the light's own static atlas): every moving caster's DGSM
+        sampled on the static receivers in its beam and on the other moving receivers
+        (:meth:`_caster_task`), each relit caster's self-shadow, and the static
+        scene's shadow on the moving receivers from its shot-long atlas (built once per shot and
+        light, voxel columns on demand: ``StaticSceneAtlas`` for a point light,
+        ``StaticSceneSunAtlas`` for a directional one). Returns ``(tasks, apply)``: ``apply(results)``
+        combines the tasks' results in a fixed order into ``(static transmittance, moving
+        transmittance, the static receivers some caster shadows)``, the same values whether the
+        tasks ran one after the other or side by side."""
         cfg = self.dgsm
         srecv = self._static_recv
-        ts = np.ones(srecv.gaussians.count)
-        hits = []
-        td = np.ones(drecv.gaussians.count)
+        tasks, steps = [], []
         for q in self._casters_dyn:
-            bound = movers.bound[q]
-            # one DGSM per caster and light, over the static and the dynamic receivers' voxels
-            hit = prims_in_shadow(self._spheres, sets[q], light, cfg.k_sigma, bound)
-            part_s = None
-            if hit:
-                cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
-                part_s = receiver_points(sets[q], srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
-            part_d = None
-            dhit = [p for p in prims_in_shadow(movers.receiver_spheres, sets[q], light, cfg.k_sigma, bound) if p != q]
-            if dhit:
-                cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
-                part_d = receiver_points(sets[q], drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
-            (idx, val), (idx_d, val_d) = shared_transmittance(sets[q], [part_s, part_d], light, cfg, movers.packed[q])
-            ts[idx] *= val
-            hits.append(idx[val < 1.0])
-            td[idx_d] *= val_d
+            tasks.append(partial(self._caster_task, q, light, sets[q], drecv, movers))
+            steps.append(("cast", q))
             # self-shadowing: its own DGSM (sharing the atlas would widen every pixel's radial range
             # to the caster's own depth: measured 2x the demo's shadow time), with its own kappa:
             # on the outdoor ground truth kappa 1 / 0.5 / 0.25 give 29.1 / 30.4 / 32.0 dB (exact
             # visibility 41.8 dB): the overlapping splats of one skin layer over-absorb for the
             # points just above it
             part_o = self._self_points(q, sets[q], drecv, light)
-            idx_o = np.zeros(0, np.int64)
             if part_o is not None:
                 cfg_o = replace(cfg, kappa=self.opts.self_shadow_kappa)
-                (idx_o, val_o), = shared_transmittance(sets[q], [part_o], light, cfg_o,
-                                                       prepare_occluders(sets[q], cfg_o))
-            if idx_o.size:
-                # self-shadowing shades only the relighting's direct term (the transmittance
-                # primvar and the attenuation of unrelit prims keep other prims' shadows only)
-                own = self._self_vis.setdefault((q, id(light)), np.ones(drecv.gaussians.count))
-                a, b = drecv.ranges[q]
-                sel, nearest = self._self_samples[q]
-                vs = np.ones(sel.size)
-                vs[np.searchsorted(a + sel, idx_o)] = val_o
-                own[a:b] *= vs[nearest]  # each Gaussian takes its nearest sample's self-shadow
-        return ts, td, hits
-
-    def _scene_shadows_on_moving(self, light, sets: dict, drecv: Receivers, td: np.ndarray) -> None:
-        """Multiplies ``td`` (the moving receivers' transmittance for ``light``) by the static
-        scene's, from its shot-long atlas (built once per shot and light, voxel columns on demand):
-        ``StaticSceneAtlas`` for a point light, ``StaticSceneSunAtlas`` for a directional one."""
+                tasks.append(partial(_self_shadow_task, sets[q], part_o, light, cfg_o))
+                steps.append(("self", q))
         block = self._scene_block
-        if block is None or not block.count:
-            return
-        part = receiver_points(block, drecv, light, self._centre_cfg, roi="all", bias=self.opts.contact_bias / self.mpu)
-        if part is not None:
+        if block is not None and block.count:
             atlas = self._static_atlas(light) if light.kind == "point" else self._static_sun_atlas(light)
-            td[part[0]] *= atlas.transmittance(part[1])
+            tasks.append(partial(_scene_task, block, drecv, light, self._centre_cfg, self.opts.contact_bias / self.mpu,
+                                 atlas))
+            steps.append(("scene", None))
+
+        def apply(results):
+            ts = np.ones(srecv.gaussians.count)
+            hits = []
+            td = np.ones(drecv.gaussians.count)
+            for (kind, q), res in zip(steps, results, strict=True):
+                if kind == "cast":
+                    (idx, val), (idx_d, val_d) = res
+                    ts[idx] *= val
+                    hits.append(idx[val < 1.0])
+                    td[idx_d] *= val_d
+                elif kind == "self":
+                    idx_o, val_o = res
+                    if idx_o.size:
+                        # self-shadowing shades only the relighting's direct term (the transmittance
+                        # primvar and the attenuation of unrelit prims keep other prims' shadows only)
+                        own = self._self_vis.setdefault((q, id(light)), np.ones(drecv.gaussians.count))
+                        a, b = drecv.ranges[q]
+                        sel, nearest = self._self_samples[q]
+                        vs = np.ones(sel.size)
+                        vs[np.searchsorted(a + sel, idx_o)] = val_o
+                        own[a:b] *= vs[nearest]  # each Gaussian takes its nearest sample's self-shadow
+                elif res is not None:
+                    td[res[0]] *= res[1]
+            return ts, td, hits
+
+        return tasks, apply
+
+    def _caster_task(self, q: str, light, g, drecv: Receivers, movers: _MovingCasters):
+        """Caster ``q``'s one DGSM for ``light`` over the static and the moving receivers' voxels:
+        ``((idx, T) static, (idx, T) moving)`` (``shared_transmittance``)."""
+        cfg = self.dgsm
+        srecv = self._static_recv
+        bound = movers.bound[q]
+        hit = prims_in_shadow(self._spheres, g, light, cfg.k_sigma, bound)
+        part_s = None
+        if hit:
+            cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
+            part_s = receiver_points(g, srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
+        part_d = None
+        dhit = [p for p in prims_in_shadow(movers.receiver_spheres, g, light, cfg.k_sigma, bound) if p != q]
+        if dhit:
+            cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
+            part_d = receiver_points(g, drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
+        return shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed[q])
 
     def _self_points(self, q: str, g, drecv: Receivers, light):
         """:func:`receiver_points` of a relit prim's own Gaussians for its own DGSM (self-shadowing,
@@ -445,16 +515,32 @@ class ShotProcessor:
     def _relit_paths(self) -> set:
         return {r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")}
 
-    def _relight_pass(self, dyn: dict, sets: dict, frame: float, author, probe_dir: Path, lights=(),
-                      shadows: FrameShadows | None = None) -> dict:
-        """``{path: (N, 3) colour factor}`` for every relit avatar and object (``usd_gs.relight.avatar``:
-        direct lights with their DGSM visibility, probe, transfer; gamma included)."""
-        relit = {}
+    def _relight_jobs(self, dyn: dict, sets: dict, frame: float, lights=()) -> list:
+        """``[(path, relight_factors keyword arguments without visibility)]`` of every relit avatar
+        and object at ``frame`` (:meth:`_relight_inputs`)."""
+        jobs = []
         for r in self.roles:
             if r.per_frame and r.relight and r.role in ("avatar", "object"):
                 everything, spans = self._shot_buffer(dyn)
-                relit[r.path] = self._relight(r.path, sets[r.path], everything, spans[r.path], frame, author,
-                                              probe_dir, lights, shadows, spans)
+                jobs.append((r.path, self._relight_inputs(r.path, sets[r.path], everything, spans[r.path], frame,
+                                                          lights, spans)))
+        return jobs
+
+    def _relight_pass(self, jobs: list, transfers: list, frame: float, author, probe_dir: Path, lights=(),
+                      shadows: FrameShadows | None = None) -> dict:
+        """``{path: (N, 3) colour factor}`` for every relit avatar and object (``usd_gs.relight.avatar``:
+        direct lights with their DGSM visibility, probe, transfer; gamma included) from its
+        :meth:`_relight_jobs` entry and its ``probe_transfer`` (``transfers``, in the same order);
+        each prim's probe is written."""
+        relit = {}
+        t = time.perf_counter()
+        for (path, job), pt in zip(jobs, transfers, strict=True):
+            vis = self._visibility(path, lights, shadows)  # keyed by the shadow lights, not the calibrated copies
+            scale, probe = relight_factors(**job, visibility=vis, transfer=pt)
+            relit[path] = scale
+            t = self.clock.add("probe", t)
+            self._write_probe(path, frame, job["centre"], probe, author, probe_dir)
+            t = self.clock.add("probe_write", t)
         return relit
 
     def _visibility(self, path: str, lights, shadows: FrameShadows | None) -> list:
@@ -755,12 +841,13 @@ class ShotProcessor:
             self._local_normals[path] = local
         return local, first
 
-    def _relight(self, path, g, everything, span, frame, author, probe_dir, lights=(), shadows=None, spans=None):
+    def _relight_inputs(self, path, g, everything, span, frame, lights=(), spans=None) -> dict:
+        """The keyword arguments of ``relight_factors`` for prim ``path`` at ``frame`` but its
+        ``visibility`` (everything that reads USD or the shot's caches happens here)."""
         jit_warmup.wait_for("relight")  # cold cache: the warm-up process compiles these kernels
         t = time.perf_counter()
         centre = alpha_weighted_centroid(g)
         mask = np.ones(everything.count, bool)
-        vis = self._visibility(path, lights, shadows)  # (before the calibrated copies: keyed by the shadow lights)
         if lights and spans is not None:
             mask &= self._emitter_mask(lights, everything, spans)  # modelled lights: not again in the probe
             lights = self._calibrated(lights, everything, spans, centre)
@@ -777,11 +864,13 @@ class ShotProcessor:
             blend = ProbeBlend.build(rest.positions, self.opts.probe_points)
             self._probe_blends[path] = blend
         normals = local_normals_to_world(g.orientations, local)
-        t = self.clock.add("transfer", t)
-        scale, probe = relight_factors(g, everything, mask, centre, normals, blend, self.opts, lights=lights,
-                                       visibility=vis,
-                                       appearance=self._appearance(path, frame, g.count))
-        t = self.clock.add("probe", t)
+        job = dict(g=g, everything=everything, mask=mask, centre=centre, normals=normals, blend=blend, opts=self.opts,
+                   lights=lights, appearance=self._appearance(path, frame, g.count))
+        self.clock.add("transfer", t)
+        return job
+
+    def _write_probe(self, path, frame, centre, probe, author, probe_dir: Path) -> None:
+        """The prim's probe at ``frame``: its lat-long EXR in the probe folder and its /UsdGs/Probes sample."""
         relit = [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
         name = probe_names(relit)[path]
         tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
@@ -790,8 +879,6 @@ class ShotProcessor:
         self.probe_files += 1
         rel = f"./{self.final_probe_dir.name}/{tex.name}"
         author.probe(name, frame, centre, probe.to_3dgs(), rel)
-        self.clock.add("probe_write", t)
-        return scale
 
     # ------------------------------------------------------------------ run
     def run(self, progress: bool = True) -> ProcessSummary:

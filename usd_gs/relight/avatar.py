@@ -47,6 +47,8 @@ is the main job's.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_angles
@@ -133,27 +135,26 @@ def dc_colors(g) -> np.ndarray:
     return 0.5 + sh3dgs.C0 * np.asarray(g.sh[:, 0, :], np.float64)
 
 
-def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
-                    dilation: float = PROBE_DILATION, lights=(), visibility=None,
-                    appearance: dict | None = None) -> tuple[np.ndarray, SHProbe]:
-    """``(factor (N, 3) float32, probe)`` for the Gaussians ``g`` (world space) with unit outward
-    ``normals`` (N, 3), lit by the scene ``everything`` where ``mask`` (bool, len
-    ``everything.count``) is True (the caller leaves out the prim itself and the Gaussians of
-    modelled lights) and by ``lights`` (``ShotLight`` list: direct terms, domes as the fill) with
-    ``visibility`` (list of (N,) per light, None entries / None for 1). ``centre`` (3,) metres;
-    ``blend`` the prim's ``parallax.ProbeBlend`` for the shot (None: one probe); ``opts`` a
-    ``ProcessOptions`` (probe_size, probe_supersample, probe_degree, transfer_degree, relight_q,
-    relight_t_max, relight_gamma, color_space); ``appearance``: None, or the prim's albedo / ZH
-    fields (module docstring).
+@dataclass
+class ProbeTransfer:
+    """What :func:`relight_factors` needs of the probe render (:func:`probe_transfer`): ``probe``
+    the stored probe (linear radiance, fill included, degree ``probe_degree``), ``transfer`` the
+    probe the ZH transfer reads (degree ``transfer_degree``; None unless the prim carries ZH
+    fields) and ``scale`` the per-Gaussian indirect factor (N, 3) (None for a ZH prim)."""
 
-    ``factor``: per Gaussian and channel, the relit displayed colour over the captured one,
-    gamma included (multiply it into every SH band). ``probe``: the fitted probe (linear radiance,
-    fill included, degree ``probe_degree``), what the output stores."""
+    probe: SHProbe
+    transfer: SHProbe | None
+    scale: np.ndarray | None
 
+
+def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
+                   dilation: float = PROBE_DILATION, lights=(), appearance: dict | None = None) -> ProbeTransfer:
+    """The indirect half of :func:`relight_factors` (its arguments, without ``visibility``): the probe
+    render of ``everything`` where ``mask`` at ``centre``, its fill from the domes among ``lights``,
+    the fitted probe and the transfer to every Gaussian. It does not depend on any shadow map, so a
+    caller may run it while the frame's shadows are computed."""
     space = getattr(opts, "color_space", "srgb")
-    gamma = float(opts.relight_gamma)
-    lights = list(lights or ())
-    domes = [lt for lt in lights if lt.kind == "dome"]
+    domes = [lt for lt in (lights or ()) if lt.kind == "dome"]
     rgb, alpha, depth = render_probe_faces(everything, centre, opts.probe_size, mask, dilation, opts.probe_supersample)
     lin = linear_faces(rgb, alpha, space)
     fill = fill_radiance(lin, alpha, domes)
@@ -164,18 +165,45 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     if blend is None or blend.k == 1 or zh:
         tp = probe if opts.transfer_degree == opts.probe_degree else fit_probe(full, degree=opts.transfer_degree,
                                                                               center=centre)
-        s = None if zh else relight_scale(normals, tp, q=q, t_max=t_max)
-    else:
-        tex = cube_texels(lin.astype(np.float32), alpha, depth, centre)
-        probes = reprojected_probes(tex, blend.centres(g.positions), opts.transfer_degree)
-        probes = probes + _fill_sh(fill, alpha, opts.transfer_degree)[None]
-        s = relight_scale(normals, probes, q=q, t_max=t_max, probe_basis="rh", blend=blend.weights)
+        return ProbeTransfer(probe, tp if zh else None, None if zh else relight_scale(normals, tp, q=q, t_max=t_max))
+    tex = cube_texels(lin.astype(np.float32), alpha, depth, centre)
+    probes = reprojected_probes(tex, blend.centres(g.positions), opts.transfer_degree)
+    probes = probes + _fill_sh(fill, alpha, opts.transfer_degree)[None]
+    return ProbeTransfer(probe, None, relight_scale(normals, probes, q=q, t_max=t_max, probe_basis="rh",
+                                                    blend=blend.weights))
+
+
+def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
+                    dilation: float = PROBE_DILATION, lights=(), visibility=None,
+                    appearance: dict | None = None, transfer: ProbeTransfer | None = None
+                    ) -> tuple[np.ndarray, SHProbe]:
+    """``(factor (N, 3) float32, probe)`` for the Gaussians ``g`` (world space) with unit outward
+    ``normals`` (N, 3), lit by the scene ``everything`` where ``mask`` (bool, len
+    ``everything.count``) is True (the caller leaves out the prim itself and the Gaussians of
+    modelled lights) and by ``lights`` (``ShotLight`` list: direct terms, domes as the fill) with
+    ``visibility`` (list of (N,) per light, None entries / None for 1). ``centre`` (3,) metres;
+    ``blend`` the prim's ``parallax.ProbeBlend`` for the shot (None: one probe); ``opts`` a
+    ``ProcessOptions`` (probe_size, probe_supersample, probe_degree, transfer_degree, relight_q,
+    relight_t_max, relight_gamma, color_space); ``appearance``: None, or the prim's albedo / ZH
+    fields (module docstring); ``transfer``: :func:`probe_transfer` of the same arguments when
+    already computed (else it is computed here).
+
+    ``factor``: per Gaussian and channel, the relit displayed colour over the captured one,
+    gamma included (multiply it into every SH band). ``probe``: the fitted probe (linear radiance,
+    fill included, degree ``probe_degree``), what the output stores."""
+
+    space = getattr(opts, "color_space", "srgb")
+    gamma = float(opts.relight_gamma)
+    lights = list(lights or ())
+    if transfer is None:
+        transfer = probe_transfer(g, everything, mask, centre, normals, blend, opts, dilation, lights, appearance)
+    probe, t_max = transfer.probe, opts.relight_t_max
     c = dc_colors(g)
-    if zh:
-        col_lin = _zh_linear(g, appearance, tp, lights, visibility, centre, gamma)
+    if transfer.transfer is not None:  # ZH appearance
+        col_lin = _zh_linear(g, appearance, transfer.transfer, lights, visibility, centre, gamma)
         out = from_linear(np.minimum(col_lin, t_max), space)
         return _ratio(out, c), probe
-    k = np.asarray(s, np.float64)
+    k = np.asarray(transfer.scale, np.float64)
     if any(lt.kind != "dome" for lt in lights):
         k = k + direct_factors(lights, g.positions, normals, visibility) / np.pi
     k = np.clip(gamma * k, 0.0, t_max)

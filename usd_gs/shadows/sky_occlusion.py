@@ -139,6 +139,16 @@ def static_sky_factors(casters: list[GaussianSet], receivers, prim_spheres: dict
     receivers some light's shadow reaches (their sun transmittance, 1 elsewhere); ``normals``: (N, 3)
     of every receiver if known (:func:`receiver_normals`; static receivers: compute them once per
     shot), else computed for the receivers in reach."""
+    return sky_factors_from_shares(hidden_sky_shares(casters, receivers, prim_spheres, up, params, tolerance, normals),
+                                   params, sun_t)
+
+
+def hidden_sky_shares(casters: list[GaussianSet], receivers, prim_spheres: dict, up: np.ndarray,
+                      params: tuple[float, float, float], tolerance: float,
+                      normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The first half of :func:`static_sky_factors` (same arguments, no ``sun_t``; it needs no
+    shadow map): ``(idx (K,) int64 sorted receiver indices, h (K,) float64)``, the share of each
+    receiver's sky the casters hide, for the receivers where it reaches :func:`min_hidden_share`."""
     g = receivers.gaussians
     empty = (np.zeros(0, np.int64), np.zeros(0, np.float32))
     h_min = min_hidden_share(params, tolerance)
@@ -170,7 +180,16 @@ def static_sky_factors(casters: list[GaussianSet], receivers, prim_spheres: dict
     idx, inv = np.unique(np.concatenate(parts_i), return_inverse=True)  # sorted; casters' shares add
     h = np.minimum(np.bincount(inv, weights=np.concatenate(parts_h), minlength=idx.size), 1.0)
     keep = h >= h_min
-    idx, h = idx[keep], h[keep]
+    return idx[keep], h[keep]
+
+
+def sky_factors_from_shares(shares: tuple[np.ndarray, np.ndarray], params: tuple[float, float, float],
+                            sun_t=None) -> tuple[np.ndarray, np.ndarray]:
+    """The second half of :func:`static_sky_factors`: ``(idx, factor float32)`` from
+    :func:`hidden_sky_shares` ``(idx, h)`` and the receivers' sun transmittance ``sun_t``."""
+    idx, h = shares
+    if idx.size == 0:
+        return idx, np.zeros(0, np.float32)
     t = np.ones(idx.size)
     if sun_t is not None and len(sun_t[0]):
         pos = np.searchsorted(sun_t[0], idx)

@@ -1,0 +1,52 @@
+"""The main job's concurrent tasks (shadow tasks of every light and caster, self-shadows, static
+scene lookups, the sky task and the probe renders side by side, ``usd_gs.pipeline.shot.run_tasks``)
+give the output of a one-thread run, value for value: two moving avatars, a sphere light, a
+distant light with a dome (self-shadows, the sun atlas and the sky occlusion all run)."""
+
+import numba
+import pytest
+from farm_compare import stage_differences
+from hardening_util import tiny_shot
+
+from usd_gs.cli import main
+
+
+def _shot(path):
+    from pxr import Gf, Usd, UsdGeom, UsdLux
+
+    from usd_gs.synthetic import random_gaussians
+    from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
+
+    tiny_shot(path, n_scene=1500, n_avatar=300, frames=3)
+    stage = Usd.Stage.Open(str(path))
+    second = random_gaussians(300, degree=1, seed=9)
+    second.positions *= 0.12
+    second.positions[:, 1] += 0.9
+    write_gaussian_prim(stage, "/World/Second", second)
+    op = UsdGeom.Xformable(stage.GetPrimAtPath("/World/Second")).AddTranslateOp()
+    for f in (1, 2, 3):
+        op.Set(Gf.Vec3d(-0.3, 0, 0.05 * f), Usd.TimeCode(f))
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(3.0)
+    UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-55.0, 30.0, 0.0))
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.5)
+    save_stage_atomic(stage, path)
+    return path
+
+
+def test_threads_give_the_one_thread_output(tmp_path):
+    threads = min(2, numba.config.NUMBA_NUM_THREADS)
+    if threads < 2:
+        pytest.skip("one CPU thread here: nothing runs side by side")
+    shot = _shot(tmp_path / "shot.usda")
+    argv = ["process", str(shot), "--avatar", "/World/Avatar", "--avatar", "/World/Second", "--lights", "stage",
+            "--aovs", "transmittance,lightScale", "--precision", "float", "--sh-tolerance", "0", "-q"]
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        assert main([*argv, "-o", str(tmp_path / "one.usdc")]) == 0
+        numba.set_num_threads(threads)
+        assert main([*argv, "-o", str(tmp_path / "two.usdc")]) == 0
+    finally:
+        numba.set_num_threads(before)
+    assert stage_differences(tmp_path / "one.usdc", tmp_path / "two.usdc", [1, 2, 3]) == []
