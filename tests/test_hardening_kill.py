@@ -27,11 +27,17 @@ import sys
 sys.path.insert(0, {tests!r})
 import numpy, pxr.Usd  # noqa: F401  (imports done before 'ready': the kill lands in the command)
 import signal
+# a signal after the command returned is not the command's: main installs its SIGTERM handler and
+# restores this one (ignore) when it returns; a Ctrl-C that lands after main returned is ignored too
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
 from usd_gs.cli import main
 print("ready", flush=True)
-rc = main({argv!r})
-# a signal after the command returned is not the command's to handle: held until the exit
-signal.pthread_sigmask(signal.SIG_BLOCK, {{signal.SIGINT, signal.SIGTERM}})
+try:
+    rc = main({argv!r})
+except KeyboardInterrupt:  # main handles its own: this one came after its command had returned
+    rc = 0
+finally:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 sys.exit(rc)
 """
 
