@@ -30,7 +30,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .jit_options import prange_only
+from .jit_options import prange_only, threaded
+from .thread_chunks import run_chunks
 
 _P1 = np.int64(73856093)
 _P2 = np.int64(19349663)
@@ -421,13 +422,30 @@ def nearest(points: np.ndarray, queries: np.ndarray, radius: float | None = None
     while todo.size:
         grid = build_grid(pts, r)
         offsets, idx = radius_neighbours(grid, q[todo], r)
-        counts = np.diff(offsets)
-        seg = np.repeat(np.arange(todo.size), counts)
-        d2 = ((pts[idx] - q[todo][seg]) ** 2).sum(axis=1)
-        order = np.lexsort((idx, d2, seg))  # per query: smallest distance, then lowest index
-        first = order[np.r_[0, np.flatnonzero(np.diff(seg[order])) + 1]] if order.size else order
-        found = counts > 0
-        out[todo[seg[first]]] = idx[first]
-        todo = todo[~found]
+        run_chunks(_nearest_of_lists, todo.size, offsets, idx, pts, q, todo, out, min_chunk=4096)
+        todo = todo[out[todo] < 0]
         r *= 2.0
     return out
+
+
+@njit(**threaded(), cache=True, fastmath=False)
+def _nearest_of_lists(i0, i1, offsets, idx, pts, q, todo, out):
+    """``out[todo[i]]`` for ``i`` in ``i0..i1-1`` (run in threads by ``thread_chunks.run_chunks``): the
+    entry of neighbour list i (``idx[offsets[i]:offsets[i+1]]``, ascending) nearest to query
+    ``q[todo[i]]`` by float64 squared distance, the first (lowest index) of equal ones; lists that
+    are empty leave ``out`` as it is."""
+    for i in range(i0, i1):
+        k = todo[i]
+        best = -1
+        best_d2 = np.inf
+        for t in range(offsets[i], offsets[i + 1]):
+            j = idx[t]
+            dx = pts[j, 0] - q[k, 0]
+            dy = pts[j, 1] - q[k, 1]
+            dz = pts[j, 2] - q[k, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < best_d2:
+                best_d2 = d2
+                best = j
+        if best >= 0:
+            out[k] = best
