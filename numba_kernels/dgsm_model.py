@@ -278,7 +278,7 @@ def _pack_gaussians(i0_, i1_, pos, quat, scales, alpha, kappa, code, occ, cov6):
         occ[n, 15] = amp
 
 
-def pack_gaussians(positions, quaternions, scales, opacities, kappa: float = 1.0, mapping: str = "avg"):
+def pack_gaussians(positions, quaternions, scales, opacities, kappa: float = 1.0, mapping: str = "avg", out=None):
     """Fast packing straight from 3DGS parameters (one parallel pass, no 3x3 inverses).
 
     positions (N, 3) m; quaternions (N, 4) (w, x, y, z), normalised here (zero -> identity);
@@ -286,7 +286,9 @@ def pack_gaussians(positions, quaternions, scales, opacities, kappa: float = 1.0
     ``pack_occluders`` (``mass`` uses ``det A = prod(s)^-2`` exactly), plus ``cov6`` (N, 6)
     covariances (xx, xy, xz, yy, yz, zz) for culling. Returns ``(occ, dir_dep, cov6)``;
     ValueError naming the field and first bad element for NaN/Inf, scales <= 0 or
-    opacities outside [0, 1].
+    opacities outside [0, 1]. ``out``: ``(occ, cov6)`` float64 C-contiguous arrays of these shapes
+    to write into (a caller packing a moving caster every frame: a fresh buffer costs its page
+    faults, more than the packing itself), else new ones.
     """
     if mapping not in MAPPINGS:
         raise ValueError(f"unknown opacity->absorption mapping {mapping!r}; expected one of {MAPPINGS}")
@@ -310,8 +312,9 @@ def pack_gaussians(positions, quaternions, scales, opacities, kappa: float = 1.0
     if n and not ((op >= 0) & (op <= 1)).all():
         i = int(np.flatnonzero(~((op >= 0) & (op <= 1)))[0])
         raise ValueError(f"'opacities' element {i} is outside [0, 1] (value {op[i]})")
-    occ = np.empty((n, 16), np.float64)
-    cov6 = np.empty((n, 6), np.float64)
+    ok = (out is not None and all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous
+                                  for a in out) and out[0].shape == (n, 16) and out[1].shape == (n, 6))
+    occ, cov6 = out if ok else (np.empty((n, 16), np.float64), np.empty((n, 6), np.float64))
     run_chunks(_pack_gaussians, pos.shape[0], pos, quat, sc, op, float(kappa), MAPPING_CODES[mapping], occ, cov6,
                min_chunk=1024)
     return occ, int(mapping == "diag"), cov6

@@ -146,9 +146,10 @@ def run_tasks(tasks: list) -> list:
         return list(pool.map(lambda task: task(), tasks))
 
 
-def _self_shadow_task(g, part, light, cfg: DGSMConfig):
-    """``(idx, T)`` of a prim's self-shadow samples ``part`` through its own DGSM (``cfg``'s kappa)."""
-    (idx, val), = shared_transmittance(g, [part], light, cfg, prepare_occluders(g, cfg))
+def _self_shadow_task(g, part, light, cfg: DGSMConfig, buffers=None):
+    """``(idx, T)`` of a prim's self-shadow samples ``part`` through its own DGSM (``cfg``'s kappa;
+    ``buffers``: ``prepare_occluders``' to reuse)."""
+    (idx, val), = shared_transmittance(g, [part], light, cfg, prepare_occluders(g, cfg, buffers))
     return idx, val
 
 
@@ -185,6 +186,7 @@ class ShotProcessor:
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
+        self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._local_sh_cache: dict = {}
         self._self_samples: dict = {}  # relit prim -> its self-shadow sample map (_self_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
@@ -332,7 +334,8 @@ class ShotProcessor:
         t = clk.add("prepare", t)
 
         cfg = self.dgsm
-        packed = {q: prepare_occluders(sets[q], cfg) for q in self._casters_dyn} if lights else {}
+        packed = {q: prepare_occluders(sets[q], cfg, self._pack_buffers(q, "cast", sets[q].count))
+                  for q in self._casters_dyn} if lights else {}
         bound = {q: occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
         # moving receivers: prim-level culling against each caster's beam, as for the bricks
         dspheres = {p: bound[p] if p in bound else occluder_sphere(sets[p], cfg.k_sigma)
@@ -421,7 +424,8 @@ class ShotProcessor:
             part_o = self._self_points(q, sets[q], drecv, light)
             if part_o is not None:
                 cfg_o = replace(cfg, kappa=self.opts.self_shadow_kappa)
-                tasks.append(partial(_self_shadow_task, sets[q], part_o, light, cfg_o))
+                tasks.append(partial(_self_shadow_task, sets[q], part_o, light, cfg_o,
+                                     self._pack_buffers(q, ("self", id(light)), sets[q].count)))
                 steps.append(("self", q))
         block = self._scene_block
         if block is not None and block.count:
@@ -456,6 +460,18 @@ class ShotProcessor:
             return ts, td, hits
 
         return tasks, apply
+
+    def _pack_buffers(self, q: str, use, n: int):
+        """``(occ (n, 16), cov6 (n, 6))`` float64 buffers that moving caster ``q``'s packed occluders
+        for ``use`` are written into every frame (``prepare_occluders``' ``out``; kept for the shot
+        while the count stays: a fresh 20-30 MB buffer per frame costs its page faults, several
+        times the packing). Each frame's packing overwrites the last; nothing keeps it longer."""
+        key = (q, use)
+        got = self._packs.get(key)
+        if got is None or got[0].shape[0] != n:
+            got = (np.empty((n, 16)), np.empty((n, 6)))
+            self._packs[key] = got
+        return got
 
     def _caster_task(self, q: str, light, g, drecv: Receivers, movers: _MovingCasters):
         """Caster ``q``'s one DGSM for ``light`` over the static and the moving receivers' voxels:

@@ -122,11 +122,12 @@ def _wrap_errors(label: str, fn, *args, **kw):
         raise GaussianDataError(f"{label}: {exc}") from None
 
 
-def prepare_occluders(occluders: GaussianSet, cfg: DGSMConfig):
-    """Packed occluders ``(occ (N, 10), dir_dep, cov6 (N, 6))`` (``dgsm_model.pack_gaussians``).
-    Raises ``GaussianDataError`` naming the set, the field and the first bad element."""
+def prepare_occluders(occluders: GaussianSet, cfg: DGSMConfig, out=None):
+    """Packed occluders ``(occ (N, 16), dir_dep, cov6 (N, 6))`` (``dgsm_model.pack_gaussians``; ``out``:
+    its buffers to reuse). Raises ``GaussianDataError`` naming the set, the field and the first bad
+    element."""
     return _wrap_errors(occluders.label, dgsm_model.pack_gaussians, occluders.positions, occluders.orientations,
-                        occluders.scales, occluders.opacities, cfg.kappa, cfg.mapping)
+                        occluders.scales, occluders.opacities, cfg.kappa, cfg.mapping, out)
 
 
 def _axes(up_axis: str):
