@@ -26,7 +26,7 @@ RANKS = {"": DATA_MODEL, "io": 1, "usd": 2, "render": 3, "shadows": 4, "relight"
          "demo": 7, "evaluation": 8, "farm": 9, "cli": 10}
 #: (importing part or module, imported module) allowed against the ranks: the package root registers the
 #: role schema plugin on import; evaluation reads the main job's option types
-EXCEPTIONS = {("usd_gs", "usd_gs.usd.schema"), ("evaluation", "usd_gs.pipeline.options")}
+EXCEPTIONS = {("usd_gs", "usd_gs.usd.plugin_path"), ("evaluation", "usd_gs.pipeline.options")}
 SUBPACKAGES = [k for k in RANKS if k]
 TEST_ONLY = {"mpmath", "scipy", "hypothesis", "pytest"}
 HEAVY_OPTIONAL = {"scipy", "matplotlib", "trimesh", "embreex", "ot", "distributed", "dask", "numba", "tqdm"}

@@ -5,6 +5,8 @@ formulas of the format (usd_gs/io/sog.py module docstring) written the plain way
 from __future__ import annotations
 
 import io
+import json
+import re
 import zipfile
 from pathlib import Path
 
@@ -12,7 +14,7 @@ import numpy as np
 import pytest
 
 from usd_gs.gaussians import scales_from_log
-from usd_gs.io import sog
+from usd_gs.io import sog, sog_files
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SOGS = sorted(DATA.rglob("*.sog"))[:12] if DATA.is_dir() else []
@@ -33,7 +35,7 @@ def _pillow(data: bytes) -> np.ndarray:
 
 @needs_data
 def test_libwebp_and_pillow_decode_the_same_pixels():
-    if sog._libwebp() is None:
+    if sog_files.libwebp() is None:
         pytest.skip("libwebp not found beside Pillow nor on the system: the Pillow path is the only one")
     n = 0
     for path in SOGS[:6]:
@@ -81,7 +83,7 @@ def test_decode_matches_the_plain_formulas():
     members = _members(path)
     prefix = min((n for n in members if n.endswith("meta.json")), key=len)[: -len("meta.json")]
     g = sog.read_sog(path)
-    src = sog._Source(str(path), archive=zipfile.ZipFile(path), prefix=prefix.rstrip("/"))
+    src = sog_files.SogSource(str(path), archive=zipfile.ZipFile(path), prefix=prefix.rstrip("/"))
     plan = sog._Plan(src)
     raw = plan.load()
     n = plan.count
@@ -156,3 +158,98 @@ def test_cli_import_of_a_lod_set_equals_the_serial_write(tmp_path):
             assert np.asarray(va).tobytes() == np.asarray(vb).tobytes(), name
         else:
             assert va == vb, name
+
+
+def _same_set(a, b) -> bool:
+    fields = ("positions", "orientations", "scales", "opacities", "sh", "log_scales")
+    return all(np.asarray(getattr(a, f)).tobytes() == np.asarray(getattr(b, f)).tobytes() for f in fields)
+
+
+@needs_data
+def test_row_blocks_decode_what_one_pass_decodes(monkeypatch):
+    """The decode in blocks of rows (sog._BLOCK) against one block of everything, bit for bit, on
+    units larger than a block (SH palette included)."""
+    lod = DATA / "scenes" / "flowers" / "lod-meta.json"
+    paths = [(lod, 1), (max(SOGS, key=lambda p: p.stat().st_size), None)]
+    blocked = [sog.read_sog(p, lod=level) for p, level in paths]
+    assert all(g.count > 2 * sog._BLOCK for g in blocked) and blocked[0].sh_degree > 0
+    monkeypatch.setattr(sog, "_BLOCK", 1 << 30)
+    for (p, level), g in zip(paths, blocked, strict=True):
+        assert _same_set(g, sog.read_sog(p, lod=level)), p
+
+
+@needs_data
+def test_bad_label_in_a_later_block_names_its_pixel(tmp_path):
+    import shutil
+
+    from PIL import Image
+
+    from usd_gs.errors import InputFormatError
+
+    unit = tmp_path / "unit"
+    shutil.copytree(DATA / "scenes" / "flowers" / "1_0", unit)
+    meta = json.loads((unit / "meta.json").read_text())
+    labels = unit / meta["shN"]["files"][1]
+    assert meta["count"] > sog._BLOCK + 5000
+    palette = meta["shN"]["count"] = meta["shN"]["count"] - 1  # the last entry is now past the end
+    (unit / "meta.json").write_text(json.dumps(meta))
+    with Image.open(labels) as im:
+        w, h = im.size
+        px = np.asarray(im.convert("RGBA")).reshape(-1, 4).copy()
+    i = sog._BLOCK + 4321
+    head = px[:i]
+    head[(head[:, 0].astype(int) | head[:, 1].astype(int) << 8) >= palette, :2] = 0  # valid before pixel i
+    px[i, :2] = (palette & 255, palette >> 8)
+    Image.fromarray(px.reshape(h, w, 4), "RGBA").save(labels, "WEBP", lossless=True)
+    with pytest.raises(InputFormatError, match=f"pixel {i} has label {palette}, past meta.json 'shN.count' {palette}"):
+        sog.read_sog(unit / "meta.json")
+
+
+@needs_data
+@pytest.mark.parametrize("kind", ["lod set", "bundled", "folder"])
+def test_prefetch_serves_the_images_and_gives_the_same_set(tmp_path, kind):
+    if kind == "lod set":
+        path, level = DATA / "scenes" / "flowers" / "lod-meta.json", 1
+    elif kind == "bundled":
+        path, level = SOGS[0], None
+    else:
+        path, level = tmp_path / "unit", None
+        path.mkdir()
+        for name, data in _members(SOGS[0]).items():
+            (path / Path(name).name).write_bytes(data)
+    pf = sog_files.SogPrefetch(str(path), level)
+    g = sog.open_sog(path, level, prefetch=pf).decode()
+    assert _same_set(g, sog.read_sog(path, lod=level))
+    decoded = [v for v in pf._images.values() if v[1] is not None]
+    units = sog.open_sog(path, level)._plans
+    assert len(decoded) == sum(len(u.jobs) for u in units)  # every image the reader decodes
+
+
+@pytest.mark.parametrize("damage", ["truncated zip", "missing image", "not webp", "no such file"])
+def test_prefetch_never_raises_and_the_reader_names_the_problem(tmp_path, damage):
+    from usd_gs.errors import InputFormatError
+    from usd_gs.io.sog import write_sog
+    from usd_gs.synthetic import random_gaussians
+
+    folder = tmp_path / "f"
+    folder.mkdir()
+    write_sog(folder / "meta.json", random_gaussians(3000, 0, seed=2))
+    zipped = tmp_path / "x.sog"
+    write_sog(zipped, random_gaussians(3000, 0, seed=2))
+    path = {"truncated zip": zipped, "no such file": tmp_path / "none.sog"}.get(damage, folder / "meta.json")
+    if damage == "truncated zip":
+        zipped.write_bytes(zipped.read_bytes()[: 5000])
+    elif damage == "missing image":
+        (folder / "quats.webp").unlink()
+    elif damage == "not webp":
+        (folder / "scales.webp").write_bytes(b"RIFF\0\0\0\0WEBPnot really")
+    with pytest.raises(InputFormatError) as plain:
+        sog.read_sog(path)
+    pf = sog_files.SogPrefetch(str(path))
+    with pytest.raises(InputFormatError) as fetched:
+        sog.open_sog(path, prefetch=pf).decode()
+    pf._thread.join(10)
+    def message(exc):  # (without the addresses of the objects a Pillow message may show)
+        return re.sub(r"0x[0-9a-f]+", "0x", str(exc.value))
+
+    assert not pf._thread.is_alive() and message(fetched) == message(plain)

@@ -115,3 +115,35 @@ def test_sog_decoded_into_vt_storage_is_the_same_set(tmp_path):
         x, y = getattr(plain, name), getattr(backed, name)
         assert x.dtype == y.dtype and np.array_equal(x, y), name
     assert vt_from_numpy(Vt.Vec3fArray, backed.positions) == Vt.Vec3fArray.FromNumpy(plain.positions)
+
+
+def test_vt_writable_view_is_the_vt_arrays_value():
+    from usd_gs.usd.bulk import vt_writable
+
+    vt, view = vt_writable(Vt.QuatfArray, 70_000, np.float32)
+    assert view.shape == (70_000, 4) and not view.any()
+    view[:] = np.arange(280_000, dtype=np.float32).reshape(70_000, 4)
+    q = vt[69_999]
+    assert (q.imaginary[0], q.imaginary[1], q.imaginary[2], q.real) == (279_996.0, 279_997.0, 279_998.0, 279_999.0)
+    assert vt_from_numpy(Vt.QuatfArray, view) is vt  # handed over without a copy
+    assert vt_writable(Vt.QuatfArray, 10, np.float64) is None  # wrong scalar: the caller falls back
+    assert vt_writable(Vt.Vec3fArray, 0, np.float32) is None
+
+
+@pytest.mark.parametrize("bad, finite", [
+    (None, True),
+    ((5, 1, np.float32(3e38)), True),  # finite values whose sum overflows: decided element by element
+    ((7, 2, np.nan), False), ((9, 0, np.inf), False), ((11, 1, -np.inf), False),
+])
+def test_all_finite_without_a_temporary(bad, finite):
+    from usd_gs.usd.gaussian_layer import _all_finite
+
+    a = np.random.default_rng(1).normal(size=(50_000, 3)).astype(np.float32)
+    if bad is not None:
+        a[bad[0], bad[1]] = bad[2]
+        if np.isfinite(bad[2]):
+            a[bad[0] + 1] = bad[2]  # several huge values: the float32 sum overflows
+    assert _all_finite(a) is finite and finite == bool(np.isfinite(a).all())
+    both = a.copy()
+    both[0, 0], both[1, 0] = np.inf, -np.inf  # inf + -inf: a NaN sum
+    assert not _all_finite(both)

@@ -84,8 +84,10 @@ class _Background:
         return self._out
 
 
-def _start_sog_decode(path: str, lod: int | None):
-    """For a SOG input: its manifests read here, then its images decoded in a background thread
+def _start_sog_decode(path: str, lod: int | None, prefetch=None):
+    """For a SOG input: its manifests read here (``prefetch``: the
+    :class:`~usd_gs.io.sog_files.SogPrefetch` started before numpy was imported, whose image
+    bytes and pixels are used), then its images decoded in a background thread
     (libwebp and numpy release the GIL) into the Vt arrays that will be written, while this
     thread imports pxr.Sdf and makes the output layer. Returns the :class:`_Background` reader, or None for other
     formats (read after the imports).
@@ -105,7 +107,7 @@ def _start_sog_decode(path: str, lod: int | None):
     from usd_gs.io.sog import load_webp_codec, open_sog
     from usd_gs.usd.bulk import VtBackedPool
 
-    opened = open_sog(path, lod)
+    opened = open_sog(path, lod, prefetch)
     load_webp_codec()
     n, k = opened.count, (opened.sh_degree + 1) ** 2
     pool = VtBackedPool()
@@ -130,8 +132,16 @@ def _join(reader):
         gc.enable()
 
 
+def _no_blas_threads() -> None:
+    """Before numpy is first imported in this process: OpenBLAS with one thread unless the user
+    set ``OPENBLAS_NUM_THREADS``. ``import`` does no linear algebra, and OpenBLAS's worker
+    threads spin for a while after numpy loads, taking a core from the decoding threads."""
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def cmd_import(args) -> int:
-    from usd_gs.io.sequence import is_pattern
+    from usd_gs.io.sog_files import SogPrefetch, looks_like_sog
     from usd_gs.usd.stage import check_usd_output_path, prim_path
 
     check_usd_output_path(args.output)
@@ -139,10 +149,14 @@ def cmd_import(args) -> int:
         raise UserError(f"{args.output}: output would overwrite the input")
     if args.lod is not None and args.lod < 0:
         raise UserError(f"--lod {args.lod}: must be >= 0 (0 is the finest level)")
+    _no_blas_threads()
+    # a SOG's images are read and decoded from here on, while numpy and pxr are imported
+    prefetch = SogPrefetch(args.input, args.lod) if looks_like_sog(args.input) else None
+    from usd_gs.io.sequence import is_pattern
     sequence = is_pattern(args.input)
     if args.frames and not sequence:
         raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
-    reader = None if sequence else _start_sog_decode(args.input, args.lod)
+    reader = None if sequence else _start_sog_decode(args.input, args.lod, prefetch)
     try:
         path = prim_path(args.prim or default_prim_path(args.input))
         from usd_gs.usd.bulk import vt_backed_empty

@@ -38,57 +38,31 @@ from __future__ import annotations
 import io
 import json
 import os
-import zipfile
-import zlib
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
 
 from usd_gs.errors import InputFormatError, first_bad_index
 from usd_gs.gaussians import GaussianSet, scales_from_log
+from usd_gs.io.sog_files import (
+    SogPrefetch,
+    SogSource,
+    archive_meta,
+    libwebp,
+    lod_files,
+    open_zip,
+    parse_meta,
+    pick_level,
+    webp_rgba,
+    webp_size,
+)
 
 _SH_REST = {1: 3, 2: 8, 3: 15}
 # |sign(x) ln(|x| + 1)| above this gives a position beyond the float32 range (and exp(log-scale) too)
 _LOG_POS_MAX = _LOG_SCALE_MAX = float(np.log(np.finfo(np.float32).max))
 # a quaternion byte b -> (b/255*2 - 1) / sqrt(2)
 _QUAT_LUT = (np.arange(256, dtype=np.float64) / 255.0 * 2.0 - 1.0) / np.sqrt(2.0)
-
-
-# ------------------------------------------------------------------------------ containers
-class _Source:
-    """Files of one SOG (``meta.json`` and its images) in a folder or a zip archive."""
-
-    def __init__(self, label: str, folder: Path | None = None, archive: zipfile.ZipFile | None = None,
-                 prefix: str = ""):
-        self.label = label
-        self.folder = folder
-        self.archive = archive
-        self.prefix = prefix
-
-    def read(self, name: str) -> bytes:
-        if self.archive is not None:
-            member = str(PurePosixPath(self.prefix) / name) if self.prefix else name
-            try:
-                return self.archive.read(member)
-            except KeyError:
-                raise InputFormatError(f"{self.label}: archive has no member '{member}'") from None
-            except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError) as exc:
-                raise InputFormatError(f"{self.label}: archive member '{member}' is corrupt ({exc})") from None
-        p = self.folder / name
-        try:
-            return p.read_bytes()
-        except FileNotFoundError:
-            raise InputFormatError(f"{self.label}: missing file {p}") from None
-        except OSError as exc:
-            raise InputFormatError(f"{self.label}: cannot read {p} ({exc})") from None
-
-
-def _open_zip(label: str, path: Path) -> zipfile.ZipFile:
-    try:
-        return zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
-        raise InputFormatError(f"{label}: not a readable .sog zip archive ({exc})") from None
 
 
 # ----------------------------------------------------------------------------------- meta
@@ -122,83 +96,25 @@ def _field(label: str, meta, dotted: str, kind):
     return cur
 
 
-def _parse_meta(label: str, data: bytes) -> dict:
-    try:
-        meta = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise InputFormatError(f"{label}: meta.json is not valid JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise InputFormatError(f"{label}: meta.json is not a JSON object")
-    if "version" not in meta:
-        raise InputFormatError(f"{label}: meta.json lacks field 'version' (SOG version 1 files are not supported; "
-                               "convert them with splat-transform)")
-    if meta["version"] != 2:
-        raise InputFormatError(f"{label}: meta.json field 'version' is {meta['version']!r}; only 2 is supported")
-    return meta
-
-
 # ---------------------------------------------------------------------------------- images
-_LIBWEBP: list = []  # [the libwebp decode functions, or None], filled on first use
-
-
-def _libwebp():
-    """``(WebPGetInfo, WebPDecodeRGBAInto)`` of libwebp through ctypes, or None.
-
-    The library is the one Pillow ships beside itself (``pillow.libs``/``.dylibs``), else the
-    system's. ctypes releases the GIL during the call, so the chunks of a LOD set decode in
-    parallel (Pillow's WebP decoder holds it), straight into a numpy buffer.
-    """
-    if _LIBWEBP:
-        return _LIBWEBP[0]
-    import ctypes
-
-    import PIL
-
-    here = Path(PIL.__file__).resolve().parent
-    names = sorted(str(f) for d in (here.parent / "pillow.libs", here / ".dylibs")
-                   if d.is_dir() for f in d.iterdir() if f.name.startswith(("libwebp-", "libwebp.")))
-    found = None
-    for name in [*names, "system"]:
-        try:
-            if name == "system":
-                import ctypes.util  # (runs ldconfig: only when Pillow ships no libwebp)
-
-                name = ctypes.util.find_library("webp")
-            lib = ctypes.CDLL(name)
-            info, decode = lib.WebPGetInfo, lib.WebPDecodeRGBAInto
-        except (OSError, AttributeError, TypeError):
-            continue
-        pint = ctypes.POINTER(ctypes.c_int)
-        info.argtypes, info.restype = [ctypes.c_char_p, ctypes.c_size_t, pint, pint], ctypes.c_int
-        decode.argtypes = [ctypes.c_char_p, ctypes.c_size_t, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-        decode.restype = ctypes.c_void_p
-        found = (info, decode)
-        break
-    _LIBWEBP.append(found)
-    return found
-
-
-def _decode_webp(label: str, name: str, data: bytes, need: int) -> np.ndarray:
+def _decode_webp(label: str, name: str, data: bytes, need: int, decoded=None) -> tuple[np.ndarray, int, int]:
     """((H*W, 4) uint8 RGBA pixels, W, H) of a WebP image holding at least ``need`` pixels.
 
-    A still WebP goes to libwebp (:func:`_libwebp`); anything libwebp does not decode that way
-    (an animation, corrupt data, another format), and every image when libwebp is not found,
-    through Pillow's ``Image.open``, whose messages name what it found.
+    A still WebP goes to libwebp (:func:`usd_gs.io.sog_files.webp_rgba`; ``decoded``: its
+    ``(pixels, W, H)`` from a :class:`~usd_gs.io.sog_files.SogPrefetch`, pixels None when it did
+    not decode); anything libwebp does not decode that way (an animation, corrupt data, another
+    format), and every image when libwebp is not found, through Pillow's ``Image.open``, whose
+    messages name what it found.
     """
-    lib = _libwebp() if data[:4] == b"RIFF" and data[8:12] == b"WEBP" else None
-    if lib is not None:
-        import ctypes
-
-        info, decode = lib
-        w, h = ctypes.c_int(0), ctypes.c_int(0)
-        if info(data, len(data), ctypes.byref(w), ctypes.byref(h)) and w.value > 0 and h.value > 0:
-            w, h = w.value, h.value
-            if w * h < need:
-                raise InputFormatError(f"{label}: image '{name}' is {w}x{h} = {w * h} pixels, fewer than "
-                                       f"meta.json 'count' {need}")
-            px = np.empty((w * h, 4), np.uint8)
-            if decode(data, len(data), px.ctypes.data, px.nbytes, 4 * w):
-                return px, w, h
+    size = decoded[1:] if decoded is not None and decoded[0] is not None else webp_size(data)
+    if size is not None:
+        w, h = size
+        if w * h < need:
+            raise InputFormatError(f"{label}: image '{name}' is {w}x{h} = {w * h} pixels, fewer than "
+                                   f"meta.json 'count' {need}")
+        px = decoded[0] if decoded is not None and decoded[0] is not None else webp_rgba(data, size)
+        if px is not None:
+            return np.frombuffer(px, np.uint8).reshape(w * h, 4), w, h
     from PIL import Image
 
     try:
@@ -224,11 +140,7 @@ def _lookup(label: str, field: str, codebook: np.ndarray, px: np.ndarray) -> np.
     into ``codebook`` (at most 256 entries); ``InputFormatError`` for an index past its end.
     Returns a (..., 3) float32 view (the gather runs over whole pixels, alpha included, through a
     256-entry table: contiguous, which is faster than gathering three strided bytes)."""
-    idx = px[..., :3]
-    if len(codebook) < 256 and idx.size and int(idx.max()) >= len(codebook):
-        i = first_bad_index(idx >= len(codebook))
-        raise InputFormatError(f"{label}: '{field}' index {int(idx.reshape(len(idx), -1)[i].max())} at Gaussian {i} "
-                               f"is past the {len(codebook)}-entry codebook")
+    _check_indices(label, field, codebook, px)
     return _take_rgb(_table256(codebook), px)
 
 
@@ -250,10 +162,10 @@ def _take_rgb(table: np.ndarray, px: np.ndarray) -> np.ndarray:
 class _Plan:
     """A parsed meta.json: what to decode (images, codebooks) for one SOG unit."""
 
-    def __init__(self, src: _Source):
+    def __init__(self, src: SogSource):
         label = self.label = src.label
         self.src = src
-        meta = _parse_meta(label, src.read("meta.json"))
+        meta = parse_meta(label, src.read("meta.json", image=False))
         self.count = n = _field(label, meta, "count", "int")
         self.mins = np.asarray(_field(label, meta, "means.mins", "vec3"), np.float64)
         self.maxs = np.asarray(_field(label, meta, "means.maxs", "vec3"), np.float64)
@@ -304,63 +216,46 @@ def _to_set(out: dict, label: str) -> GaussianSet:
 
 
 def _images(plan: _Plan, raw: dict) -> dict:
-    """The decoded WebP images of one SOG unit: key -> (pixels, width, height)."""
-    jobs = plan.jobs
-    return {key: _decode_webp(plan.label, jobs[key][0], raw[key], jobs[key][1]) for key in jobs}
+    """The decoded WebP images of one SOG unit: key -> (pixels, width, height) (those its
+    source's prefetch decoded are taken from there)."""
+    jobs, src = plan.jobs, plan.src
+    out = {}
+    for key, (name, need) in jobs.items():
+        hit = src.prefetched(name)
+        out[key] = _decode_webp(plan.label, name, raw[key], need, None if hit is None else hit[1:])
+    return out
+
+
+#: rows decoded per pass: the temporaries stay a few hundred KB (reused and in cache) instead of
+#: fresh (N,)-sized arrays, whose first-touch page faults cost more than the arithmetic
+_BLOCK = 16384
 
 
 def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
-    """Decode one SOG unit's images (:func:`_images`) into rows ``start:start+count`` of ``out``."""
+    """Decode one SOG unit's images (:func:`_images`) into rows ``start:start+count`` of ``out``
+    (the checks first, naming the field and element; then :data:`_BLOCK` rows at a time)."""
     label = plan.label
     n = plan.count
     mins, maxs, qfile, bands = plan.mins, plan.maxs, plan.qfile, plan.bands
-    sl = slice(start, start + n)
     rng = maxs - mins
     rng[rng == 0] = 1.0
     if max(np.abs(mins).max(), np.abs(mins + rng).max()) > _LOG_POS_MAX:
         raise InputFormatError(f"{label}: meta.json 'means.mins'/'means.maxs' {mins.tolist()}/{maxs.tolist()} "
                                "decode to positions outside the float32 range")
-    u = imgs["means_l"][0][:n, :3].astype(np.uint16)
-    u |= imgs["means_u"][0][:n, :3].astype(np.uint16) << 8
-    positions = out["positions"][sl]
+    lut = None
     if n > 30000:  # a 65536-entry table per axis (same float64 values), then one gather per axis
         v = (np.arange(65536) / 65535.0)[:, None] * rng + mins
         lut = np.copysign(np.expm1(np.abs(v)), v).astype(np.float32)
-        for j in range(3):
-            positions[:, j] = np.take(lut[:, j], u[:, j])
-    else:
-        v = u / 65535.0  # the reference's order of operations: min + range * (u / 65535)
-        v *= rng
-        v += mins
-        positions[...] = np.copysign(np.expm1(np.abs(v)), v)
-
     qpx = imgs["quats"][0][:n]
     if n and qpx[:, 3].min() < 252:
         i = int(np.flatnonzero(qpx[:, 3] < 252)[0])
         raise InputFormatError(f"{label}: image '{qfile}' pixel {i} has alpha {int(qpx[i, 3])}; "
                                "a quaternion tag must be 252..255")
-    tag = qpx[:, 3] - np.uint8(252)  # index (w, x, y, z) of the largest component
-    abc = np.take(_QUAT_LUT, qpx[:, :3])  # the other three, in (w, x, y, z) order
-    abc2 = np.einsum("ij,ij->i", abc, abc)
-    big = np.sqrt(np.maximum(0.0, 1.0 - abc2))
-    inv_norm = 1.0 / np.sqrt(abc2 + big * big)  # never zero: the largest is 1 when a = b = c = 0
-    quats = out["orientations"][sl]
-    col = np.empty(n, np.float64)
-    for j in range(4):  # component j: the largest where tag == j, else a, b or c (j or j-1 by tag > j)
-        below, above = abc[:, max(j - 1, 0)], abc[:, min(j, 2)]
-        np.copyto(col, above if j == 0 else below)
-        if 0 < j < 3:
-            np.copyto(col, above, where=tag > j)
-        np.copyto(col, big, where=tag == j)
-        col *= inv_norm
-        quats[:, j] = col
-
-    spx = imgs["scales"][0][:n]
-    out["log_scales"][sl] = _lookup(label, "scales", plan.scb, spx)
-    out["scales"][sl] = _take_rgb(scales_from_log(_table256(plan.scb)), spx)  # elementwise: as of log_scales
-    c0 = imgs["sh0"][0][:n]
-    sh = out["sh"][sl]
-    out["opacities"][sl] = c0[:, 3].astype(np.float32) / np.float32(255.0)
+    spx, c0 = imgs["scales"][0][:n], imgs["sh0"][0][:n]
+    _check_indices(label, "scales", plan.scb, spx)
+    _check_indices(label, "sh0", plan.ccb, c0)
+    log_table, scale_table, dc_table = _table256(plan.scb), scales_from_log(_table256(plan.scb)), _table256(plan.ccb)
+    rows = lab = None
     if bands:
         hfiles, palette, hcb = plan.hfiles, plan.palette, plan.hcb
         rest = _SH_REST[bands]
@@ -372,55 +267,71 @@ def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
             raise InputFormatError(f"{label}: meta.json 'shN.count' {palette} is more than the {ch * 64} palette "
                                    f"entries image '{hfiles[0]}' ({cw}x{ch}) holds")
         pal = _lookup(label, "shN", hcb, cen.reshape(ch * 64, rest, 4)[:palette])  # (P, K-1, 3)
+        # whole rows (coefficient 0 and any band past this unit's left 0), gathered into the output
+        k = out["sh"].shape[1]
+        rows = np.zeros((palette, k * 3), np.float32)
+        rows.reshape(palette, k, 3)[:, 1:rest + 1] = pal
         lab = imgs["labels"][0][:n]
-        labels = lab[:, 0].astype(np.intp) | (lab[:, 1].astype(np.intp) << 8)
-        if n and labels.max() >= palette:
-            i = int(np.flatnonzero(labels >= palette)[0])
-            raise InputFormatError(f"{label}: image '{hfiles[1]}' pixel {i} has label {int(labels[i])}, past "
-                                   f"meta.json 'shN.count' {palette}")
-        # one gather of whole rows (coefficient 0 and any band past this unit's left 0) into the output
-        k = sh.shape[1]
-        rows = np.zeros((palette, k, 3), np.float32)
-        rows[:, 1:rest + 1] = pal
-        np.take(rows.reshape(palette, k * 3), labels, axis=0, out=sh.reshape(n, k * 3), mode="clip")
-    sh[:, 0, :] = _lookup(label, "sh0", plan.ccb, c0)
+    for r0 in range(0, n, _BLOCK):
+        r1 = min(n, r0 + _BLOCK)
+        sl = slice(start + r0, start + r1)
+        u = imgs["means_l"][0][r0:r1, :3].astype(np.uint16)
+        u |= imgs["means_u"][0][r0:r1, :3].astype(np.uint16) << 8
+        positions = out["positions"][sl]
+        if lut is not None:
+            for j in range(3):
+                np.take(lut[:, j], u[:, j], out=positions[:, j])
+        else:
+            v = u / 65535.0  # the reference's order of operations: min + range * (u / 65535)
+            v *= rng
+            v += mins
+            positions[...] = np.copysign(np.expm1(np.abs(v)), v)
+        _quaternions(qpx[r0:r1], out["orientations"][sl])
+        out["log_scales"][sl] = _take_rgb(log_table, spx[r0:r1])
+        out["scales"][sl] = _take_rgb(scale_table, spx[r0:r1])  # elementwise: as of log_scales
+        out["opacities"][sl] = c0[r0:r1, 3].astype(np.float32) / np.float32(255.0)
+        sh = out["sh"][sl]
+        if rows is not None:
+            labels = lab[r0:r1, 0].astype(np.intp) | (lab[r0:r1, 1].astype(np.intp) << 8)
+            if len(labels) and labels.max() >= len(rows):
+                i = int(np.flatnonzero(labels >= len(rows))[0])
+                raise InputFormatError(f"{label}: image '{plan.hfiles[1]}' pixel {r0 + i} has label "
+                                       f"{int(labels[i])}, past meta.json 'shN.count' {len(rows)}")
+            np.take(rows, labels, axis=0, out=sh.reshape(r1 - r0, -1), mode="clip")
+        sh[:, 0, :] = _take_rgb(dc_table, c0[r0:r1])
+
+
+def _check_indices(label: str, field: str, codebook: np.ndarray, px: np.ndarray) -> None:
+    """``InputFormatError`` naming the Gaussian when an R, G or B byte of ``px`` (N, 4) is past
+    the end of ``codebook`` (at most 256 entries)."""
+    idx = px[..., :3]
+    if len(codebook) < 256 and idx.size and int(idx.max()) >= len(codebook):
+        i = first_bad_index(idx >= len(codebook))
+        raise InputFormatError(f"{label}: '{field}' index {int(idx.reshape(len(idx), -1)[i].max())} at Gaussian {i} "
+                               f"is past the {len(codebook)}-entry codebook")
+
+
+def _quaternions(qpx: np.ndarray, quats: np.ndarray) -> None:
+    """Unit (w, x, y, z) quaternions into ``quats`` (M, 4) float32 from smallest-three pixels
+    ``qpx`` (M, 4) uint8 whose alpha tags are checked (252..255); normalised in float64."""
+    n = len(qpx)
+    tag = qpx[:, 3] - np.uint8(252)  # index (w, x, y, z) of the largest component
+    abc = np.take(_QUAT_LUT, qpx[:, :3])  # the other three, in (w, x, y, z) order
+    abc2 = np.einsum("ij,ij->i", abc, abc)
+    big = np.sqrt(np.maximum(0.0, 1.0 - abc2))
+    inv_norm = 1.0 / np.sqrt(abc2 + big * big)  # never zero: the largest is 1 when a = b = c = 0
+    col = np.empty(n, np.float64)
+    for j in range(4):  # component j: the largest where tag == j, else a, b or c (j or j-1 by tag > j)
+        below, above = abc[:, max(j - 1, 0)], abc[:, min(j, 2)]
+        np.copyto(col, above if j == 0 else below)
+        if 0 < j < 3:
+            np.copyto(col, above, where=tag > j)
+        np.copyto(col, big, where=tag == j)
+        col *= inv_norm
+        quats[:, j] = col
 
 
 # ------------------------------------------------------------------------------------ LOD
-def _lod_files(label: str, meta) -> tuple[int, dict[int, dict[int, int]], list[str]]:
-    """(lodLevels, {level: {file index: Gaussian count}}, filenames) of a lod-meta.json."""
-    if not isinstance(meta, dict):
-        raise InputFormatError(f"{label}: lod-meta.json is not a JSON object")
-    levels = meta.get("lodLevels")
-    if not isinstance(levels, int) or isinstance(levels, bool) or levels <= 0:
-        raise InputFormatError(f"{label}: lod-meta.json field 'lodLevels' is missing or not a positive integer")
-    names = meta.get("filenames")
-    if not isinstance(names, list) or not all(isinstance(x, str) and x for x in names):
-        raise InputFormatError(f"{label}: lod-meta.json field 'filenames' is missing or not a list of names")
-    if not isinstance(meta.get("tree"), dict):
-        raise InputFormatError(f"{label}: lod-meta.json field 'tree' is missing or not an object")
-    out: dict[int, dict[int, int]] = {}
-    stack = [meta["tree"]]
-    while stack:
-        node = stack.pop()
-        if not isinstance(node, dict):
-            raise InputFormatError(f"{label}: lod-meta.json 'tree' has a node that is not an object")
-        lods = node.get("lods", {})
-        children = node.get("children", [])
-        if not isinstance(lods, dict) or not isinstance(children, list):
-            raise InputFormatError(f"{label}: lod-meta.json 'tree' node has bad 'lods' or 'children'")
-        for key, ref in lods.items():
-            ok = (isinstance(ref, dict) and key.isdigit() and int(key) < levels
-                  and all(isinstance(ref.get(f), int) and not isinstance(ref.get(f), bool) and ref.get(f) >= 0
-                          for f in ("file", "offset", "count")) and ref["file"] < len(names))
-            if not ok:
-                raise InputFormatError(f"{label}: lod-meta.json 'tree' has a bad LOD reference {key!r}: {ref!r}")
-            files = out.setdefault(int(key), {})
-            files[ref["file"]] = files.get(ref["file"], 0) + ref["count"]
-        stack.extend(children)
-    return levels, out, names
-
-
 class OpenedSog:
     """A SOG capture whose ``meta.json`` files are read and checked (:func:`open_sog`);
     :meth:`decode` reads and decodes the images. ``count`` Gaussians of SH degree ``sh_degree``."""
@@ -466,13 +377,13 @@ def read_lod_set(path, lod: int | None = None, threads: int | None = None, empty
     return open_lod_set(path, lod).decode(threads, empty)
 
 
-def open_lod_set(path, lod: int | None = None) -> OpenedSog:
+def open_lod_set(path, lod: int | None = None, prefetch: SogPrefetch | None = None) -> OpenedSog:
     """One level of a SOG LOD set (``lod-meta.json``), its manifests read, ready to decode.
 
     ``lod`` None picks the finest level (lowest number) whose chunk files are all present.
     Raises :class:`InputFormatError` for a bad manifest, a level that does not exist, a level
     whose chunk files are missing (the message lists them) and a chunk whose ``count``
-    differs from the counts the tree references.
+    differs from the counts the tree references. ``prefetch``: see :func:`open_sog`.
     """
     p = Path(path)
     label = str(path)
@@ -482,31 +393,12 @@ def open_lod_set(path, lod: int | None = None) -> OpenedSog:
         raise InputFormatError(f"{label}: no such file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise InputFormatError(f"{label}: lod-meta.json is not valid JSON ({exc})") from None
-    levels, by_level, names = _lod_files(label, meta)
-    present = sorted(by_level)
-    if not present:
-        raise InputFormatError(f"{label}: lod-meta.json 'tree' references no LOD level")
-
-    def missing(level):
-        return [str(p.parent / names[f]) for f in sorted(by_level[level]) if not (p.parent / names[f]).is_file()]
-
-    if lod is None:
-        complete = [lv for lv in present if not missing(lv)]
-        if not complete:
-            raise InputFormatError(f"{label}: no LOD level is complete; level {present[0]} lacks "
-                                   f"{', '.join(missing(present[0]))}")
-        lod = complete[0]
-    elif lod not in by_level:
-        raise InputFormatError(f"{label}: LOD level {lod} is not in the set (levels: "
-                               f"{', '.join(map(str, present))})")
-    else:
-        gone = missing(lod)
-        if gone:
-            raise InputFormatError(f"{label}: LOD level {lod} is incomplete: missing {', '.join(gone)}")
+    _, by_level, names = lod_files(label, meta)
+    lod = pick_level(label, p.parent, by_level, names, lod)
     plans = []
     for f, count in sorted(by_level[lod].items()):
         meta_path = p.parent / names[f]
-        plan = _Plan(_Source(str(meta_path), folder=meta_path.parent))
+        plan = _Plan(SogSource(str(meta_path), folder=meta_path.parent, prefetch=prefetch))
         if plan.count != count:
             raise InputFormatError(f"{meta_path}: meta.json 'count' is {plan.count} but {label} references "
                                    f"{count} Gaussians in it for LOD {lod}")
@@ -533,10 +425,12 @@ def read_sog(path, lod: int | None = None, threads: int | None = None, empty=Non
     return open_sog(path, lod).decode(threads, empty)
 
 
-def open_sog(path, lod: int | None = None) -> OpenedSog:
+def open_sog(path, lod: int | None = None, prefetch: SogPrefetch | None = None) -> OpenedSog:
     """The first half of :func:`read_sog`: the manifests read and checked (and a bundled
     ``.sog``'s members read), so ``count`` and ``sh_degree`` are known before the images are
-    decoded by :meth:`OpenedSog.decode`. Raises what :func:`read_sog` raises for the manifests."""
+    decoded by :meth:`OpenedSog.decode`. Raises what :func:`read_sog` raises for the manifests.
+    ``prefetch``: a :class:`~usd_gs.io.sog_files.SogPrefetch` of ``path`` started earlier, whose
+    image bytes and pixels are used (the same values; it only saves time)."""
     p = Path(path)
     label = str(path)
     if p.is_dir():
@@ -549,30 +443,22 @@ def open_sog(path, lod: int | None = None) -> OpenedSog:
     if not p.exists():
         raise InputFormatError(f"{label}: no such file")
     if p.name == "lod-meta.json":
-        return open_lod_set(p, lod)
+        return open_lod_set(p, lod, prefetch)
     if lod not in (None, 0):
         raise InputFormatError(f"{label}: --lod {lod} given but this SOG has a single level (no lod-meta.json)")
     if p.suffix.lower() == ".json":
-        return OpenedSog(label, [_Plan(_Source(str(p), folder=p.parent))])
-    with _open_zip(label, p) as zf:
-        try:
-            names = zf.namelist()
-        except (zipfile.BadZipFile, ValueError) as exc:
-            raise InputFormatError(f"{label}: corrupt zip directory ({exc})") from None
-        metas = [nm for nm in names if PurePosixPath(nm).name == "meta.json"]
-        if not metas:
-            raise InputFormatError(f"{label}: archive has no meta.json")
-        prefix = str(PurePosixPath(min(metas, key=len)).parent)
-        plan = _Plan(_Source(label, archive=zf, prefix="" if prefix == "." else prefix))
+        return OpenedSog(label, [_Plan(SogSource(str(p), folder=p.parent, prefetch=prefetch))])
+    with open_zip(label, p) as zf:
+        plan = _Plan(SogSource(label, archive=zf, prefix=archive_meta(label, zf), prefetch=prefetch))
         raw = plan.load()
     return OpenedSog(label, [plan], [raw])
 
 
 def load_webp_codec() -> bool:
-    """Find and load libwebp now (:func:`_libwebp`; otherwise done on the first image); True
-    when found. ``usdgs import`` calls it before it decodes in a thread, so that thread
-    loads nothing."""
-    return _libwebp() is not None
+    """Find and load libwebp now (:func:`usd_gs.io.sog_files.libwebp`; otherwise done on the first
+    image); True when found. ``usdgs import`` calls it before it decodes in a thread, so that
+    thread loads nothing."""
+    return libwebp() is not None
 
 
 # ---------------------------------------------------------------------------------- writing
@@ -681,6 +567,8 @@ def write_sog(path, gaussians: GaussianSet) -> None:
             with atomic_output(p.parent / name) as tmp:
                 tmp.write_bytes(data)
         return
+    import zipfile
+
     with atomic_output(p) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
         for name in ("meta.json", *sorted(k for k in files if k != "meta.json")):
             zf.writestr(name, files[name])

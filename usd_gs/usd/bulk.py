@@ -83,13 +83,26 @@ def vt_from_numpy(vt_cls, arr: np.ndarray):
     owner = _vt_owner(vt_cls, arr)
     if owner is not None:
         return owner
-    out = vt_cls(len(arr))
-    view = np.asarray(out)
-    if view.dtype != arr.dtype or view.shape != arr.shape or not view.flags.c_contiguous:
+    fresh = vt_writable(vt_cls, len(arr), arr.dtype)
+    if fresh is None or fresh[1].shape != arr.shape:
         return vt_cls.FromNumpy(arr)
+    np.copyto(fresh[1], arr)
+    return fresh[0]
+
+
+def vt_writable(vt_cls, count: int, dtype) -> tuple | None:
+    """``(vt_cls(count), a writable numpy view of its storage)``: the view's element scalar is
+    ``dtype`` (a ``Vt.QuatfArray`` is (count, 4) float32 x, y, z, w), its values 0. What is
+    written into the view is the Vt array's value; the contract of :func:`vt_backed_empty`
+    applies (not modified once handed to USD). None when the buffer layout does not line up
+    or ``count`` is 0 (use ``FromNumpy``)."""
+    out = vt_cls(int(count))
+    view = np.asarray(out)
+    if view.dtype != np.dtype(dtype) or not view.flags.c_contiguous or view.nbytes == 0:
+        return None
     raw = (ctypes.c_char * view.nbytes).from_address(view.__array_interface__["data"][0])
-    np.copyto(np.frombuffer(raw, view.dtype).reshape(view.shape), arr)
-    return out
+    setattr(raw, _OWNER, out)  # keeps the Vt array alive as long as the view
+    return out, np.frombuffer(raw, view.dtype).reshape(view.shape)
 
 
 def _near_bounds(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, lo_up: np.ndarray, hi_down: np.ndarray,
@@ -131,9 +144,14 @@ def gaussian_extent(g, n_sigma: float = 3.0) -> np.ndarray:
         small = np.minimum(np.minimum(s[:, 0], s[:, 1]), s[:, 2])
         small *= k * np.float32(1.0 - 1e-5)
         pick = np.zeros(n, bool)
+        lo, hi, lo_up, hi_down = (np.empty(n, s.dtype) for _ in range(4))  # reused over the axes
         for i in range(3):
             p = g.positions[:, i]
-            if not _near_bounds(p, p - big, p + big, p - small, p + small, big, pick):
+            np.subtract(p, big, out=lo)
+            np.add(p, big, out=hi)
+            np.subtract(p, small, out=lo_up)
+            np.add(p, small, out=hi_down)
+            if not _near_bounds(p, lo, hi, lo_up, hi_down, big, pick):
                 return g.extent(n_sigma)
         idx = np.flatnonzero(pick)
         if len(idx) > 4096:

@@ -19,7 +19,7 @@ from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, UserError, first_bad_index
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
-from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy
+from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy, vt_writable
 
 GS_TYPE = "ParticleField3DGaussianSplat"
 
@@ -62,8 +62,16 @@ _EXTRA_TYPES = {
 
 # --------------------------------------------------------------------------- checks
 def _all_finite(arr: np.ndarray) -> bool:
-    """True when every element of the float array is finite (one flat pass)."""
-    return arr.size == 0 or bool(np.isfinite(arr.reshape(-1)).all())
+    """True when every element of the float array is finite. One pass without an array-sized
+    temporary: a NaN or an infinity makes the sum NaN or infinite, so a finite sum proves every
+    element finite; a sum that overflows (or a non-finite element) is decided element by element."""
+    if arr.size == 0:
+        return True
+    flat = arr.reshape(-1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.add.reduce(flat, dtype=flat.dtype)):
+            return True
+    return bool(np.isfinite(flat).all())
 
 
 def _check_finite(arr: np.ndarray, where: str, name: str) -> None:
@@ -132,7 +140,8 @@ def gaussian_values(g: GaussianSet, path, keep_raw: bool = True, precision: str 
     label = str(path)
     types = _FLOAT_TYPES if precision == "float" else _HALF_TYPES
     dt = np.float32 if precision == "float" else np.float16
-    quat_xyzw = np.empty((n, 4), dt)
+    fresh = vt_writable(types[ORIENTATIONS][1], n, dt)  # reordered straight into USD's storage
+    quat_xyzw = fresh[1] if fresh is not None and fresh[1].shape == (n, 4) else np.empty((n, 4), dt)
     quat_xyzw[:, :3] = g.orientations[:, 1:]
     quat_xyzw[:, 3] = g.orientations[:, 0]
     values = {

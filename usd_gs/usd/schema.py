@@ -2,7 +2,8 @@
 
 The schema files live in the repository's ``schemas/`` directory, installed as the
 package ``usd_gs.schemas`` (``plugInfo.json``, ``generatedSchema.usda``, ``schema.usda``).
-:func:`register_plugins` registers them with ``Plug`` (called at ``import usd_gs``).
+``import usd_gs`` makes them known to ``Plug`` (:func:`usd_gs.usd.plugin_path.register_at_import`:
+``PXR_PLUGINPATH_NAME`` before pxr is loaded, else :func:`register_plugins`).
 
 Properties (all ``uniform``, never time-sampled):
 
@@ -23,16 +24,15 @@ in that process. ``import usd_gs`` before using USD, or set ``PXR_PLUGINPATH_NAM
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
 
 from usd_gs.errors import UserError
+from usd_gs.usd.plugin_path import PLUGIN_NAME, missing_schema_error, schema_folder
 
 ROLE_API = "UsdGsRoleAPI"
 """Schema identifier (the name in ``apiSchemas``). Its TfType name is ``UsdGsUsdGsRoleAPI``
 (usdGenSchema's library prefix ``UsdGs`` + class name; a TfType may not alias its own name)."""
-PLUGIN_NAME = "usdGs"
 ROLES = ("auto", "scene", "avatar", "object")
 
 ATTR_ROLE = "usdgs:role"
@@ -63,22 +63,12 @@ class RoleInfo:
 
 
 def schema_dir() -> Path:
-    """Directory holding ``plugInfo.json`` of the usd-gs schema plugin.
-
-    Pip-installed: the package ``usd_gs.schemas``. Source tree (``PYTHONPATH=<repo>``),
-    where ``usd_gs.schemas`` is not importable: ``<repo>/schemas`` next to ``usd_gs/``.
-    """
-    try:  # (find_spec, not importlib.resources: that costs 10 ms of imports at every start)
-        spec = importlib.util.find_spec("usd_gs.schemas")
-        for folder in (spec.submodule_search_locations or []) if spec is not None else []:
-            if (Path(folder) / "plugInfo.json").is_file():
-                return Path(folder)
-    except (ModuleNotFoundError, TypeError, ValueError):
-        pass
-    path = Path(__file__).resolve().parents[2] / "schemas"
-    if (path / "plugInfo.json").is_file():
-        return path
-    raise UserError(f"usd-gs schema plugin not found: no plugInfo.json in the package usd_gs.schemas or in {path}")
+    """Directory holding ``plugInfo.json`` of the usd-gs schema plugin
+    (:func:`usd_gs.usd.plugin_path.schema_folder`); ``UserError`` when it is absent."""
+    folder = schema_folder()
+    if folder is None:
+        raise missing_schema_error()
+    return Path(folder)
 
 
 def register_plugins() -> bool:
