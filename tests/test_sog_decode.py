@@ -253,3 +253,34 @@ def test_prefetch_never_raises_and_the_reader_names_the_problem(tmp_path, damage
         return re.sub(r"0x[0-9a-f]+", "0x", str(exc.value))
 
     assert not pf._thread.is_alive() and message(fetched) == message(plain)
+
+
+@needs_data
+def test_manifest_size_is_what_the_reader_finds(tmp_path):
+    lod = DATA / "scenes" / "flowers" / "lod-meta.json"
+    for path, level in ((lod, 0), (lod, None), (lod, 2), (SOGS[0], None), (lod.parent / "1_0" / "meta.json", None)):
+        opened = sog.open_sog(path, level)
+        assert sog_files.manifest_size(str(path), level) == (opened.count, opened.sh_degree), (path, level)
+    bad = tmp_path / "bad.sog"
+    bad.write_bytes(b"PK\3\4 not a zip")
+    assert sog_files.manifest_size(str(bad)) is None
+    assert sog_files.manifest_size(str(lod), 7) is None  # no such level: the reader names it
+
+
+def test_vt_backed_pool_uses_arrays_allocated_before_numpy_views():
+    from pxr import Vt
+
+    from usd_gs.usd.bulk import VtBackedPool, vt_from_numpy
+    from usd_gs.usd.vt_alloc import new_vt_array
+
+    made = [((40_000, 3), new_vt_array((40_000, 3))), ((40_000,), new_vt_array((40_000,))),
+            ((40_000, 9, 3), new_vt_array((40_000, 9, 3))), ((5, 5), new_vt_array((5, 5)))]
+    assert made[3][1] is None and len(made[2][1]) == 360_000
+    pool = VtBackedPool()
+    pool.fill([(40_000, 3), (40_000, 3), (40_000,), (40_000, 9, 3)], made[:3])
+    a, b, c, d = pool((40_000, 3)), pool((40_000, 3)), pool((40_000,)), pool((40_000, 9, 3))
+    assert vt_from_numpy(Vt.Vec3fArray, a) is made[0][1]  # the early array, no copy
+    assert vt_from_numpy(Vt.Vec3fArray, b) is not made[0][1]  # the second (40000, 3): a fresh one
+    assert vt_from_numpy(Vt.FloatArray, c) is made[1][1]
+    d[7, 2] = (1.0, 2.0, 3.0)
+    assert tuple(made[2][1][7 * 9 + 2]) == (1.0, 2.0, 3.0)

@@ -84,7 +84,24 @@ class _Background:
         return self._out
 
 
-def _start_sog_decode(path: str, lod: int | None, prefetch=None):
+#: the arrays a SOG decodes into (usd_gs.io.sog._alloc, orientations aside): positions,
+#: log-scales, scales (N, 3), opacities (N,), SH (N, K, 3)
+def _decoded_shapes(n: int, degree: int) -> list[tuple]:
+    return [(n, 3), (n, 3), (n, 3), (n,), (n, (degree + 1) ** 2, 3)]
+
+
+def _early_vt_arrays(path: str, lod: int | None) -> list:
+    """``(shape, Vt array)`` for the arrays a SOG input decodes into, sized from its manifests and
+    allocated with pxr alone, before numpy loads (so the decode can start as soon as numpy is
+    there); [] when the manifests do not parse (the reader then reports why)."""
+    from usd_gs.io.sog_files import manifest_size
+    from usd_gs.usd.vt_alloc import new_vt_array
+
+    size = manifest_size(path, lod)
+    return [] if size is None else [(shape, new_vt_array(shape)) for shape in _decoded_shapes(*size)]
+
+
+def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     """For a SOG input: its manifests read here (``prefetch``: the
     :class:`~usd_gs.io.sog_files.SogPrefetch` started before numpy was imported, whose image
     bytes and pixels are used), then its images decoded in a background thread
@@ -109,12 +126,11 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None):
 
     opened = open_sog(path, lod, prefetch)
     load_webp_codec()
-    n, k = opened.count, (opened.sh_degree + 1) ** 2
     pool = VtBackedPool()
     gc.disable()
     reader = _Background(opened.decode, None, pool)  # decodes the first images while the pool fills
     try:
-        pool.fill([(n, 3), (n, 3), (n, 3), (n,), (n, k, 3)])
+        pool.fill(_decoded_shapes(opened.count, opened.sh_degree), made)
     except BaseException:
         with contextlib.suppress(BaseException):
             _join(reader)  # (the collector back on)
@@ -152,11 +168,12 @@ def cmd_import(args) -> int:
     _no_blas_threads()
     # a SOG's images are read and decoded from here on, while numpy and pxr are imported
     prefetch = SogPrefetch(args.input, args.lod) if looks_like_sog(args.input) else None
+    made = _early_vt_arrays(args.input, args.lod) if prefetch is not None else []
     from usd_gs.io.sequence import is_pattern
     sequence = is_pattern(args.input)
     if args.frames and not sequence:
         raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
-    reader = None if sequence else _start_sog_decode(args.input, args.lod, prefetch)
+    reader = None if sequence else _start_sog_decode(args.input, args.lod, prefetch, made)
     try:
         path = prim_path(args.prim or default_prim_path(args.input))
         from usd_gs.usd.bulk import vt_backed_empty

@@ -257,6 +257,30 @@ def looks_like_sog(path: str) -> bool:
     return os.path.isdir(path) and any(os.path.isfile(os.path.join(path, m)) for m in ("lod-meta.json", "meta.json"))
 
 
+def manifest_size(path: str, lod: int | None = None) -> tuple[int, int] | None:
+    """``(Gaussian count, SH degree)`` of a SOG input from its manifests alone (``lod``: as for
+    :func:`pick_level`), or None when they do not parse; checks nothing else (the reader does)."""
+    try:
+        p = Path(path)
+        if p.is_dir():
+            p = p / "lod-meta.json" if (p / "lod-meta.json").is_file() else p / "meta.json"
+        if p.name == "lod-meta.json":
+            _, by_level, names = lod_files(str(p), json.loads(p.read_text(encoding="utf-8")))
+            level = pick_level(str(p), p.parent, by_level, names, lod)
+            metas = [json.loads((p.parent / names[f]).read_bytes()) for f in sorted(by_level[level])]
+        elif p.suffix.lower() == ".json":
+            metas = [json.loads(p.read_bytes())]
+        else:
+            with zipfile.ZipFile(p) as zf:
+                prefix = archive_meta(str(p), zf)
+                metas = [json.loads(zf.read(SogSource(str(p), archive=zf, prefix=prefix)._member("meta.json")))]
+        count = sum(int(m["count"]) for m in metas)
+        degree = max(int(m["shN"]["bands"]) if isinstance(m.get("shN"), dict) else 0 for m in metas)
+        return (count, degree) if count >= 0 and 0 <= degree <= 3 else None
+    except Exception:  # noqa: BLE001 - the reader reports what is wrong with the manifests
+        return None
+
+
 class SogPrefetch:
     """The image files of a SOG input read and decoded by libwebp in a daemon thread.
 

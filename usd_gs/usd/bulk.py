@@ -12,6 +12,8 @@ import ctypes
 
 import numpy as np
 
+from usd_gs.usd.vt_alloc import new_vt_array, vt_class_name
+
 #: below this many bytes ``FromNumpy`` is used as it is (nothing to gain)
 _SMALL = 1 << 16
 
@@ -19,11 +21,7 @@ _SMALL = 1 << 16
 #: attribute of the ctypes buffer behind a :func:`vt_backed_empty` array that holds its Vt array
 _OWNER = "_usdgs_vt_array"
 
-#: float32 trailing shape -> the Vt array class whose numpy view has that element shape
-_VT_BY_TAIL = {(): "FloatArray", (3,): "Vec3fArray"}
-
-
-def vt_backed_empty(shape: tuple, dtype=np.float32) -> np.ndarray:
+def vt_backed_empty(shape: tuple, dtype=np.float32, vt=None) -> np.ndarray:
     """A writable numpy array of ``shape`` (float32, C order) whose memory is the storage of a
     fresh ``Vt.FloatArray`` (``shape`` (N,)) or ``Vt.Vec3fArray`` (``(N, ..., 3)``, N * ... vectors);
     other shapes and dtypes get a plain ``np.empty``. Values start at 0.
@@ -31,16 +29,13 @@ def vt_backed_empty(shape: tuple, dtype=np.float32) -> np.ndarray:
     :func:`vt_from_numpy` of such an array (or of a C-contiguous view of all of it) returns that
     Vt array itself instead of a copy: a reader decodes straight into what USD writes. The
     contract: the numpy array is not modified after it was handed to USD (the Vt array would
-    change with it).
+    change with it). ``vt``: such a Vt array already allocated (``usd_gs.usd.vt_alloc.new_vt_array
+    (shape)``), used instead of a fresh one.
     """
     shape = tuple(int(d) for d in shape)
-    tail = (3,) if len(shape) >= 2 and shape[-1] == 3 else shape[1:]
-    if np.dtype(dtype) != np.float32 or tail not in _VT_BY_TAIL or not shape:
+    if np.dtype(dtype) != np.float32 or vt_class_name(shape) is None:
         return np.zeros(shape, dtype)
-    from pxr import Vt
-
-    count = int(np.prod(shape[:-1])) if tail else shape[0]
-    out = getattr(Vt, _VT_BY_TAIL[tail])(count)
+    out = vt if vt is not None and type(vt).__name__ == vt_class_name(shape) else new_vt_array(shape)
     view = np.asarray(out)
     if view.dtype != np.float32 or view.size != int(np.prod(shape)) or not view.flags.c_contiguous:
         return np.zeros(shape, dtype)
@@ -213,11 +208,18 @@ class VtBackedPool:
         if shapes is not None:
             self.fill(shapes)
 
-    def fill(self, shapes) -> None:
-        """Allocate one array per shape of ``shapes``; then the calls stop waiting."""
+    def fill(self, shapes, made=()) -> None:
+        """Allocate one array per shape of ``shapes``; then the calls stop waiting. ``made``:
+        ``(shape, Vt array)`` pairs allocated earlier (``usd_gs.usd.vt_alloc.new_vt_array``),
+        used for shapes they match instead of new arrays."""
+        spare = [(tuple(int(d) for d in s), vt) for s, vt in made]
         try:
             for shape in shapes:
-                self._free.setdefault(tuple(int(d) for d in shape), []).append(vt_backed_empty(shape))
+                shape = tuple(int(d) for d in shape)
+                vt = next((pair for pair in spare if pair[0] == shape), None)
+                if vt is not None:
+                    spare.remove(vt)
+                self._free.setdefault(shape, []).append(vt_backed_empty(shape, vt=None if vt is None else vt[1]))
         finally:
             self._ready.set()  # on an error (MemoryError) the reader gets numpy arrays instead
 
