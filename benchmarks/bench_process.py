@@ -6,7 +6,8 @@ Usage (from the repo root, package installed in .venv, ../shared/data present):
         [--skip-cold] [--skip-large]
 
 - cold: a fresh numba cache directory (NUMBA_CACHE_DIR), so JIT compilation is included;
-- warm: the same command again with that cache;
+- warm: the same command again with that cache (``--skip-cold``: with the default cache, as
+  ``usdgs warmup`` filled it);
 - large: the demo plus a bricked block of random Gaussians 9x the demo's scene size placed
   40 m away (beyond every light's and avatar's reach), sublayered into a new shot.
 Each run is a whole ``usdgs process`` process; its ``--json`` summary gives the timings.
@@ -30,8 +31,9 @@ def usdgs() -> str:
     return str(exe) if exe.exists() else "usdgs"
 
 
-def run_process(stage: Path, out: Path, frames: str, cache_dir: str) -> tuple[float, dict]:
-    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+def run_process(stage: Path, out: Path, frames: str, cache_dir: str | None) -> tuple[float, dict]:
+    """(wall s, ``--json`` summary) of one ``usdgs process``; ``cache_dir`` None: the default numba cache."""
+    env = dict(os.environ) if cache_dir is None else dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
     t0 = time.perf_counter()
     r = subprocess.run([usdgs(), "process", str(stage), "-o", str(out), "--frames", frames, "--json"],
                        capture_output=True, text=True, env=env)
@@ -84,7 +86,8 @@ def main() -> None:
     demo = Path(args.demo)
     if not demo.exists():
         subprocess.run([usdgs(), "demo", "make", "-o", str(demo), "-q"], check=True)
-    cache = tempfile.mkdtemp(prefix="numba_cache_")
+    # a fresh cache for the cold run (then warm from it); --skip-cold: the default cache (usdgs warmup)
+    cache = None if args.skip_cold else tempfile.mkdtemp(prefix="numba_cache_")
     rows = []
     try:
         if not args.skip_cold:
@@ -97,7 +100,8 @@ def main() -> None:
             wall, s = run_process(shot, work / "large_shot.lit.usdc", args.frames, cache)
             rows.append(("demo + 9x scene far away, warm", wall, s))
     finally:
-        shutil.rmtree(cache, ignore_errors=True)
+        if cache is not None:
+            shutil.rmtree(cache, ignore_errors=True)
     print(f"machine: {os.cpu_count()} cores; frames {args.frames}")
     print(f"{'run':34s} {'wall s':>8s} {'s/frame':>8s} {'out MB':>8s} {'KB/frame':>9s}  stage seconds")
     for name, wall, s in rows:

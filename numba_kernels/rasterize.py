@@ -212,9 +212,10 @@ def _sh_color(sh, g, dx, dy, dz):
 
 
 @njit(**threaded(), cache=True, fastmath=False, error_model="numpy")
-def _cull(i0_, i1_, positions, scales, opacities, include, cams, width, height, dilation, vis):
-    """Fill ``vis`` (N,) int64: per Gaussian, the bit mask of the cameras whose image its support
-    may touch (conservative).
+def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, height, dilation, vis):
+    """Fill ``vis`` int64: per Gaussian (per entry ``k`` of ``order``, Gaussian ``order[k]``, when
+    ``order`` is not empty), the bit mask of the cameras whose image its support may touch
+    (conservative).
 
     cams (K, 22) float64 rows: view_rot (9, row-major), view_t (3), fx, fy, cx, cy, near, far,
     guard-band clamp (x/z min, max, y/z min, max) as built by ``rasterize``.
@@ -222,8 +223,10 @@ def _cull(i0_, i1_, positions, scales, opacities, include, cams, width, height, 
     n = positions.shape[0]
     ncam = cams.shape[0]
     use_mask = include.shape[0] == n
-    for g in range(i0_, i1_):
-        vis[g] = 0
+    use_order = order.shape[0] > 0
+    for k_ in range(i0_, i1_):
+        g = order[k_] if use_order else k_
+        vis[k_] = 0
         if use_mask and not include[g]:
             continue
         op = np.float64(opacities[g])
@@ -262,7 +265,7 @@ def _cull(i0_, i1_, positions, scales, opacities, include, cams, width, height, 
             i0, i1 = _pixel_range(v, eb, height)
             if j1 >= j0 and i1 >= i0:
                 bits |= np.int64(1) << k
-        vis[g] = bits
+        vis[k_] = bits
 
 
 @njit(cache=True, error_model="numpy")
@@ -288,11 +291,10 @@ def _visible_offsets(vis, off):
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp, cam_pos,
+def _write_gaussian(g, e, bits, positions, quats, scales, opacities, sh, view_rot, view_t, intr, clamp, cam_pos,
                     width, height, dilation, antialiased, rec, info, depth32):
-    """Entries of Gaussian g for the cameras in ``bits`` (see ``_write_entries``)."""
+    """Entries ``e``, ``e + 1``... of Gaussian g for the cameras in ``bits`` (see ``_write_entries``)."""
     ncam = view_rot.shape[0]
-    e = off[g]
     op = min(1.0, np.float64(opacities[g]))  # >= 1/255 (checked by _cull)
     qcut = _support_q(op)
     px = np.float64(positions[g, 0])
@@ -353,21 +355,23 @@ def _write_gaussian(g, bits, off, positions, quats, scales, opacities, sh, view_
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
-def _write_range(g0, g1, positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
+def _write_range(g0, g1, positions, quats, scales, opacities, sh, order, vis, off, view_rot, view_t, intr, clamp,
                  cam_pos, width, height, dilation, antialiased, rec, info, depth32):
     """Entries of Gaussians g0..g1-1: one chunk of :func:`_write_entries`'s parallel loop (a called
     function, not an inlined body: numba types and optimises a parallel loop's body twice (measured: half
     the kernel's compile time); chunks keep the call overhead negligible)."""
-    for g in range(g0, g1):
-        bits = vis[g]
+    use_order = order.shape[0] > 0
+    for k in range(g0, g1):
+        bits = vis[k]
         if bits == 0:
             continue
-        _write_gaussian(np.uint64(g), bits, off, positions, quats, scales, opacities, sh, view_rot, view_t, intr,
+        g = order[k] if use_order else k
+        _write_gaussian(np.uint64(g), off[k], bits, positions, quats, scales, opacities, sh, view_rot, view_t, intr,
                         clamp, cam_pos, width, height, dilation, antialiased, rec, info, depth32)
 
 
 @njit(cache=True, **threaded(), fastmath=False, error_model="numpy")
-def _write_entries(c0, c1, positions, quats, scales, opacities, sh, vis, off, view_rot, view_t, intr, clamp,
+def _write_entries(c0, c1, positions, quats, scales, opacities, sh, order, vis, off, view_rot, view_t, intr, clamp,
                    cam_pos, width, height, dilation, antialiased, rec, info, depth32):
     """Project every (Gaussian, camera) pair that passed the cull, in Gaussian-major order, for
     the Gaussian chunks ``c0..c1-1`` (``_CHUNK`` Gaussians each; run in threads by
@@ -377,10 +381,10 @@ def _write_entries(c0, c1, positions, quats, scales, opacities, sh, vis, off, vi
     info (M,5) int32 (camera, or -1 when the exact test rejects it; pixel bbox j0, j1, i0, i1)
     and depth32 (M,) float32 view depth (inf when rejected).
     """
-    n = positions.shape[0]
+    n = vis.shape[0]
     for ch in range(c0, c1):
         _write_range(np.int64(ch) * _CHUNK, min(n, (np.int64(ch) + 1) * _CHUNK), positions, quats, scales,
-                     opacities, sh, vis, off, view_rot, view_t, intr, clamp, cam_pos, width, height, dilation,
+                     opacities, sh, order, vis, off, view_rot, view_t, intr, clamp, cam_pos, width, height, dilation,
                      antialiased, rec, info, depth32)
 
 
@@ -627,14 +631,16 @@ def _tile_order(ntiles: int) -> np.ndarray:
 
 def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
               width, height, include=None, dilation=DEFAULT_DILATION, guard=DEFAULT_GUARD, tile=TILE,
-              antialiased=False):
+              antialiased=False, order=None):
     """Render N Gaussians into K cameras of equal size (see module docstring).
 
     positions (N,3), quats (N,4) (w,x,y,z), scales (N,3) linear sigma, opacities (N,) linear,
     sh (N,(d+1)^2,3) 3DGS basis (float32 or float64). Cameras: view_rot (K,3,3) and
     view_t (K,3) world -> view (x right, y down, z depth), intr (K,4) = fx, fy, cx, cy in
     pixels, nearfar (K,2), cam_pos (K,3) world camera centres (for the SH direction); K <= 63.
-    include: optional (N,) bool mask of the Gaussians to render. dilation: px^2 added to the 2D
+    include: optional (N,) bool mask of the Gaussians to render; or ``order``: the increasing
+    indices of the Gaussians to render (int64; the same image as the mask that selects them, bit
+    for bit, without a pass over the others). dilation: px^2 added to the 2D
     covariance diagonal (3DGS: 0.3); guard: Jacobian clamp factor (3DGS: 1.3). antialiased:
     scale each splat's opacity by sqrt(det(Sigma2 - dilation I) / det(Sigma2)) so the dilation
     blurs small Gaussians without adding light (gsplat's "antialiased" mode; for renders whose
@@ -659,12 +665,22 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     n = positions.shape[0]
     if n >= 2**31:
         raise ValueError("rasterize: at most 2**31 - 1 Gaussians")
+    if include is not None and order is not None:
+        raise ValueError("rasterize: give a mask or an order, not both")
+    if order is not None:
+        order = np.ascontiguousarray(order, np.int64).reshape(-1)
+        if order.size and (order[0] < 0 or order[-1] >= n or np.any(np.diff(order) <= 0)):
+            raise ValueError(f"rasterize: order must hold increasing indices in [0, {n})")
+        if order.size == 0:  # nothing to draw: an all-false mask
+            include, order = np.zeros(n, np.bool_), None
     if include is None:
         include = np.zeros(0, np.bool_)
     else:
         include = np.ascontiguousarray(include, np.bool_)
         if include.shape != (n,):
             raise ValueError(f"rasterize: mask has shape {include.shape}, expected ({n},)")
+    order = np.zeros(0, np.int64) if order is None else order
+    m_in = order.shape[0] if order.shape[0] else n  # Gaussians the passes go over
     dilation = float(dilation)
     guard = float(guard)
     tiles_x = (width + tile - 1) // tile
@@ -678,9 +694,10 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
                                            cy_ + guard * hy_], axis=1))
     cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp], axis=1))
     # large buffers are allocated by numpy (huge-page advice: far fewer page faults than numba's allocator)
-    vis = np.empty(n, np.int64)
-    run_chunks(_cull, n, positions, scales, opacities, include, cams, width, height, dilation, vis, min_chunk=4096)
-    off = np.empty(n + 1, np.int64)
+    vis = np.empty(m_in, np.int64)
+    run_chunks(_cull, m_in, positions, scales, opacities, include, order, cams, width, height, dilation, vis,
+               min_chunk=4096)
+    off = np.empty(m_in + 1, np.int64)
     _visible_offsets(vis, off)
     m = int(off[-1])
     if m >= 2**31:
@@ -688,7 +705,7 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     rec = _aligned_empty((m, _NF), np.float32)  # one 64-byte cache line per record
     info = np.empty((m, 5), np.int32)
     depth32 = np.empty(m, np.float32)
-    run_chunks(_write_entries, (n + _CHUNK - 1) // _CHUNK, positions, quats, scales, opacities, sh, vis, off,
+    run_chunks(_write_entries, (m_in + _CHUNK - 1) // _CHUNK, positions, quats, scales, opacities, sh, order, vis, off,
                view_rot, view_t, intr, clamp, cam_pos, width, height, dilation, bool(antialiased), rec, info, depth32)
     tile_start, tile_list = _bin_tiles(info, ncam, tiles_x, tiles_y, tile, 16)
     ntiles = ncam * tiles_x * tiles_y

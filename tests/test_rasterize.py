@@ -128,6 +128,26 @@ def test_reference_with_mask_and_background():
     np.testing.assert_allclose(sub.rgb, fast.rgb, atol=1e-6)
 
 
+def test_order_draws_what_the_mask_draws_bit_for_bit():
+    g = _scene_random(seed=5)
+    mask = np.random.default_rng(1).uniform(size=g.count) < 0.3
+    for cams in ([CAM], None):
+        if cams is None:
+            a = render_cube_faces(g, np.zeros(3), 16, mask=mask, antialiased=True)
+            b = render_cube_faces(g, np.zeros(3), 16, antialiased=True, order=np.flatnonzero(mask))
+        else:
+            a = render_batch(g, cams, mask=mask)
+            b = render_batch(g, cams, order=np.flatnonzero(mask))
+        assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    empty = render_batch(g, [CAM], order=np.zeros(0, np.int64))
+    assert not empty[1].any()
+    for bad in ([3, 2], [-1], [g.count]):
+        with pytest.raises(ValueError, match="increasing indices"):
+            render_batch(g, [CAM], order=np.array(bad))
+    with pytest.raises(ValueError, match="not both"):
+        render_batch(g, [CAM], mask=mask, order=np.flatnonzero(mask))
+
+
 def _facing_camera(size=33):
     # principal point = centre of pixel 16 for an odd size
     return Camera(np.zeros(3), np.eye(3), 40.0, 40.0, size / 2, size / 2, size, size, near=0.05, far=100.0)

@@ -39,6 +39,11 @@ class ProcessOptions:
     transfer_degree: int = 4
     probe_points: int = 8
     probe_supersample: int = PROBE_SUPERSAMPLE  # usd_gs.relight.probe: 1, drawn at the probe size
+    # usd_gs.relight.far_field: static Gaussians beyond this many metres of a relit prim's probe come
+    # from a cached render (0: every probe draws everything), redrawn when the probe moves to another
+    # cell of a grid of this fraction of the radius
+    probe_far_radius: float = 15.0
+    probe_far_tolerance: float = 0.05
     probe_texture: tuple[int, int] = (32, 64)
     relight_q: float = 1.0
     relight_gamma: float = 1.0
@@ -72,6 +77,10 @@ class ProcessOptions:
             raise UserError(f"probe points must be 1..64, got {self.probe_points}")
         if not 1 <= self.probe_supersample <= 4:
             raise UserError(f"probe supersampling must be 1..4, got {self.probe_supersample}")
+        if not self.probe_far_radius >= 0.0:
+            raise UserError(f"probe_far_radius must be >= 0 metres (0: off), got {self.probe_far_radius}")
+        if not 0.0 < self.probe_far_tolerance <= 0.5:
+            raise UserError(f"probe_far_tolerance must be in (0, 0.5], got {self.probe_far_tolerance}")
         if self.lights not in ("auto", "stage", "indoor", "outdoor"):
             try:
                 k = int(self.lights)

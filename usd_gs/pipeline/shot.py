@@ -45,6 +45,7 @@ from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.appearance import read_appearance
 from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
+from usd_gs.relight.far_field import FarField
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.sun_estimation import up_vector
@@ -186,6 +187,7 @@ class ShotProcessor:
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
+        self._far_fields: dict = {}  # relit prim -> its probe renders' far-layer cache (usd_gs.relight.far_field)
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._local_sh_cache: dict = {}
         self._self_samples: dict = {}  # relit prim -> its self-shadow sample map (_self_sample_map)
@@ -881,9 +883,21 @@ class ShotProcessor:
             self._probe_blends[path] = blend
         normals = local_normals_to_world(g.orientations, local)
         job = dict(g=g, everything=everything, mask=mask, centre=centre, normals=normals, blend=blend, opts=self.opts,
-                   lights=lights, appearance=self._appearance(path, frame, g.count))
+                   lights=lights, appearance=self._appearance(path, frame, g.count), far=self._far_field(path, spans))
         self.clock.add("transfer", t)
         return job
+
+    def _far_field(self, path: str, spans) -> FarField | None:
+        """Prim ``path``'s far-layer cache for its probe renders (``usd_gs.relight.far_field``), or
+        None when ``probe_far_radius`` is 0 or the shot has no static Gaussians."""
+        radius = self.opts.probe_far_radius / self.mpu
+        static_count = max((spans[p][1] for p in self.static if p in spans), default=0) if spans else 0
+        if radius <= 0.0 or static_count == 0:
+            return None
+        far = self._far_fields.get(path)
+        if far is None or far.static_count != static_count:
+            far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count)
+        return far
 
     def _write_probe(self, path, frame, centre, probe, author, probe_dir: Path) -> None:
         """The prim's probe at ``frame``: its lat-long EXR in the probe folder and its /UsdGs/Probes sample."""

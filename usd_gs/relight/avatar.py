@@ -148,14 +148,17 @@ class ProbeTransfer:
 
 
 def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
-                   dilation: float = PROBE_DILATION, lights=(), appearance: dict | None = None) -> ProbeTransfer:
+                   dilation: float = PROBE_DILATION, lights=(), appearance: dict | None = None,
+                   far=None) -> ProbeTransfer:
     """The indirect half of :func:`relight_factors` (its arguments, without ``visibility``): the probe
     render of ``everything`` where ``mask`` at ``centre``, its fill from the domes among ``lights``,
     the fitted probe and the transfer to every Gaussian. It does not depend on any shadow map, so a
-    caller may run it while the frame's shadows are computed."""
+    caller may run it while the frame's shadows are computed. ``far``: the prim's
+    ``usd_gs.relight.far_field.FarField`` (the far static scene from its cached layer), or None."""
     space = getattr(opts, "color_space", "srgb")
     domes = [lt for lt in (lights or ()) if lt.kind == "dome"]
-    rgb, alpha, depth = render_probe_faces(everything, centre, opts.probe_size, mask, dilation, opts.probe_supersample)
+    render = render_probe_faces if far is None else far.render
+    rgb, alpha, depth = render(everything, centre, opts.probe_size, mask, dilation, opts.probe_supersample)
     lin = linear_faces(rgb, alpha, space)
     fill = fill_radiance(lin, alpha, domes)
     full = lin + unobserved_share(alpha)[..., None] * fill
@@ -175,7 +178,7 @@ def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray,
 
 def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
                     dilation: float = PROBE_DILATION, lights=(), visibility=None,
-                    appearance: dict | None = None, transfer: ProbeTransfer | None = None
+                    appearance: dict | None = None, transfer: ProbeTransfer | None = None, far=None
                     ) -> tuple[np.ndarray, SHProbe]:
     """``(factor (N, 3) float32, probe)`` for the Gaussians ``g`` (world space) with unit outward
     ``normals`` (N, 3), lit by the scene ``everything`` where ``mask`` (bool, len
@@ -186,7 +189,7 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     ``ProcessOptions`` (probe_size, probe_supersample, probe_degree, transfer_degree, relight_q,
     relight_t_max, relight_gamma, color_space); ``appearance``: None, or the prim's albedo / ZH
     fields (module docstring); ``transfer``: :func:`probe_transfer` of the same arguments when
-    already computed (else it is computed here).
+    already computed (else it is computed here); ``far``: as for :func:`probe_transfer`.
 
     ``factor``: per Gaussian and channel, the relit displayed colour over the captured one,
     gamma included (multiply it into every SH band). ``probe``: the fitted probe (linear radiance,
@@ -196,7 +199,8 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     gamma = float(opts.relight_gamma)
     lights = list(lights or ())
     if transfer is None:
-        transfer = probe_transfer(g, everything, mask, centre, normals, blend, opts, dilation, lights, appearance)
+        transfer = probe_transfer(g, everything, mask, centre, normals, blend, opts, dilation, lights, appearance,
+                                  far)
     probe, t_max = transfer.probe, opts.relight_t_max
     c = dc_colors(g)
     if transfer.transfer is not None:  # ZH appearance

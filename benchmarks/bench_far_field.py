@@ -1,0 +1,123 @@
+"""Probe renders with a far static scene (issue 16): the far-field layer cache against drawing
+everything, speed and error side by side in one run (not a test).
+
+Shots: the default demo, and the demo plus a bricked block of 9x the room's Gaussians 40 m away
+(``bench_process.make_large_shot``). Each runs ``usdgs process`` in this process for ``--frames``,
+with the relit prims' probe renders and transfers (``usd_gs.relight.avatar.probe_transfer``) timed
+per call; the large shot twice, with ``probe_far_radius`` 0 (every probe draws everything: the
+reference) and with the default far field. Printed per run: s/frame of the whole job, probe
+seconds per frame after frame 1 (frame 1 apart), far layers rendered; and the relit prims'
+displayed DC colour against the reference run (max / mean / 99.9th percentile of |difference|,
+all frames and prims). The demo has nothing beyond the radius: its output is the same with and
+without the far field.
+
+    PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_far_field.py [--frames 1-8] [--workdir DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_process import make_large_shot
+
+C0 = 0.28209479177387814
+
+
+def run(stage: Path, out: Path, frames: str, config: dict | None) -> dict:
+    """One in-process ``usdgs process``: its summary plus probe-call times and far-layer renders."""
+    import usd_gs.pipeline.shot as shot
+    import usd_gs.relight.far_field as far_field
+    from usd_gs.cli import main
+
+    calls, fields = [], []
+    plain, init = shot.probe_transfer, far_field.FarField.__init__
+
+    def timed(*a, **k):
+        t = time.perf_counter()
+        try:
+            return plain(*a, **k)
+        finally:
+            calls.append(time.perf_counter() - t)
+
+    def tracked(self, *a, **k):
+        init(self, *a, **k)
+        fields.append(self)
+
+    args = ["process", str(stage), "-o", str(out), "--frames", frames, "--json"]
+    if config:
+        cfg = out.with_suffix(".config.json")
+        cfg.write_text(json.dumps(config))
+        args += ["--config", str(cfg)]
+    shot.probe_transfer, far_field.FarField.__init__ = timed, tracked
+    try:
+        import contextlib
+        import io
+
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            assert main(args) == 0
+        summary = json.loads(buf.getvalue())
+    finally:
+        shot.probe_transfer, far_field.FarField.__init__ = plain, init
+    n = summary["frames"]["count"]
+    per = len(calls) // n if n else 0
+    summary["probe_steady"] = sum(calls[per:]) / max(1, n - 1)
+    summary["probe_first"] = sum(calls[:per])
+    summary["far_renders"] = sum(f.renders for f in fields)
+    return summary
+
+
+def dc_difference(a: Path, b: Path) -> np.ndarray:
+    """|displayed DC colour difference| of every relit prim's SH, every frame, between two outputs."""
+    from pxr import Usd
+
+    sa, sb = Usd.Stage.Open(str(a)), Usd.Stage.Open(str(b))
+    out = []
+    for prim in sa.Traverse():
+        for name in ("radiance:sphericalHarmonicsCoefficientsh", "radiance:sphericalHarmonicsCoefficients"):
+            at = prim.GetAttribute(name)
+            if not at or not at.GetNumTimeSamples():
+                continue
+            bt = sb.GetPrimAtPath(prim.GetPath()).GetAttribute(name)
+            k = (int(prim.GetAttribute("radiance:sphericalHarmonicsDegree").Get() or 0) + 1) ** 2
+            for t in at.GetTimeSamples():
+                va, vb = (np.asarray(x.Get(t), np.float64).reshape(-1, k, 3)[:, 0] for x in (at, bt))
+                out.append(np.abs(C0 * (va - vb)).ravel())
+            break
+    return np.concatenate(out) if out else np.zeros(1)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", default="1-8")
+    ap.add_argument("--workdir", default=None)
+    ap.add_argument("--demo", default="stages/demo.usda")
+    a = ap.parse_args()
+    work = Path(a.workdir or tempfile.mkdtemp(prefix="bench_far_"))
+    work.mkdir(parents=True, exist_ok=True)
+    large = make_large_shot(Path(a.demo).resolve(), work)
+    runs = collections.OrderedDict()
+    runs["demo"] = run(Path(a.demo).resolve(), work / "demo.lit.usdc", a.frames, None)
+    runs["large, far field off"] = run(large, work / "large_off.lit.usdc", a.frames, {"probe_far_radius": 0.0})
+    runs["large, far field"] = run(large, work / "large_far.lit.usdc", a.frames, None)
+    print(f"frames {a.frames}; probe = the relit prims' probe renders + transfers, s/frame after frame 1")
+    print(f"{'run':24s} {'s/frame':>8s} {'probe':>7s} {'probe f1':>9s} {'far layers':>11s}")
+    for name, s in runs.items():
+        print(f"{name:24s} {s['seconds_per_frame']:8.3f} {s['probe_steady']:7.3f} {s['probe_first']:9.2f} "
+              f"{s['far_renders']:11d}")
+    base = runs["demo"]["probe_steady"]
+    print(f"probe time / demo's: far field off {runs['large, far field off']['probe_steady'] / base:.2f}x, "
+          f"far field {runs['large, far field']['probe_steady'] / base:.2f}x (same run)")
+    d = dc_difference(work / "large_far.lit.usdc", work / "large_off.lit.usdc")
+    print(f"relit DC colour, far field vs off: max {d.max():.5f} ({255 * d.max():.2f}/255), mean {d.mean():.2e}, "
+          f"p99.9 {np.quantile(d, 0.999):.5f}")
+
+
+if __name__ == "__main__":
+    main()
