@@ -98,9 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         return 143 if isinstance(exc, Terminated) else 130
     finally:
         if previous is not None:
-            import signal
-
-            signal.signal(signal.SIGTERM, previous)
+            _restore_signals(previous)
 
 
 def _main(argv: list[str], process_entry: bool = False) -> int:
@@ -191,21 +189,84 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread like Ctrl-C so every atomic write and temp folder is cleaned up."""
 
 
-def _on_sigterm(signum, frame):
-    raise Terminated()
+#: a SIGTERM or SIGINT that landed inside a module import, to be raised once the import is done
+_PENDING: list[int] = []
+
+#: seconds between checks whether the import a pending signal waits for has finished
+_RECHECK_S = 0.02
+
+
+def _in_import(frame) -> bool:
+    """True when ``frame`` (where a signal handler interrupted the main thread) is inside a module
+    import. An exception raised there can be swallowed by the importer: USD's
+    ``Tf.PreparePythonModule`` prints it and leaves the module half loaded, and the command would
+    go on instead of stopping."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _raise_signal(signum: int):
+    import signal
+
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _on_signal(signum, frame):
+    """SIGTERM: :class:`Terminated`; SIGINT: ``KeyboardInterrupt``; inside an import, deferred
+    until it has finished (:func:`_in_import`; checked again every :data:`_RECHECK_S`)."""
+    import signal
+
+    if _in_import(frame):
+        _PENDING.append(signum)
+        signal.setitimer(signal.ITIMER_REAL, _RECHECK_S)
+        return
+    _PENDING.clear()
+    _raise_signal(signum)
+
+
+def _on_recheck(signum, frame):
+    import signal
+
+    if not _PENDING:
+        return
+    if _in_import(frame):
+        signal.setitimer(signal.ITIMER_REAL, _RECHECK_S)
+        return
+    pending = _PENDING[0]
+    _PENDING.clear()
+    _raise_signal(pending)
 
 
 def _handle_sigterm():
-    """Install the SIGTERM handler (main thread only); returns the previous handler or None."""
+    """Install the SIGTERM, SIGINT and (for signals deferred past an import) SIGALRM handlers, in
+    the main thread only; returns the previous handlers (for :func:`_restore_signals`) or None."""
     import signal
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         return None
+    previous = {}
     try:
-        return signal.signal(signal.SIGTERM, _on_sigterm)
+        for sig, handler in ((signal.SIGTERM, _on_signal), (signal.SIGINT, _on_signal),
+                             (signal.SIGALRM, _on_recheck)):
+            previous[sig] = signal.signal(sig, handler)
     except (ValueError, OSError):
+        _restore_signals(previous)
         return None
+    return previous
+
+
+def _restore_signals(previous: dict) -> None:
+    """Put back the handlers :func:`_handle_sigterm` replaced; a deferred signal is dropped."""
+    import signal
+
+    signal.setitimer(signal.ITIMER_REAL, 0.0)
+    _PENDING.clear()
+    for sig, handler in previous.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
 #: errno values of OSError that are the user's environment (permissions, full disk, a file where a
