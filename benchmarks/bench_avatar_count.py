@@ -1,0 +1,113 @@
+"""Relighting + shadow time per frame against the number of moving avatars (issue 16): 1, 2, 4, 8
+bikers in the demo room, one run (not a test).
+
+Each shot sublayers the default demo's room (``stages/demo_data/room.usdc``: 304,893 Gaussians, its
+two lamps estimated as in the demo) and references the demo's animated biker (152,746 Gaussians)
+N times, each copy under an Xform offset on a ring of 1.3 m radius around the room's centre (so they
+shadow each other and share the lamps). ``usdgs process`` runs in this process for ``--frames``;
+per frame the shadow pass (every light's moving-caster DGSMs, self-shadows, static-scene lookups
+and the probe renders, which run beside them) and the relighting (``_relight_jobs``,
+``_relight_pass``) are timed, not reading or authoring. Printed per N: the
+mean over frames 2.. (frame 1 apart: it builds the shot's caches) of shadows + relighting, its
+ratio to N = 1, and the whole job's s/frame.
+
+    PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py [--frames 1-6] [--counts 1,2,4,8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def make_shot(demo_data: Path, n: int, folder: Path) -> Path:
+    """A shot of the demo room and ``n`` bikers (module docstring); returns its root layer."""
+    from pxr import Gf, Sdf, Usd, UsdGeom
+
+    src = Sdf.Layer.FindOrOpen(str(demo_data.parent / "demo.usda"))
+    path = folder / f"bikers_{n}.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    for key in ("upAxis", "metersPerUnit", "timeCodesPerSecond", "startTimeCode", "endTimeCode", "framesPerSecond"):
+        if src.pseudoRoot.HasInfo(key):
+            stage.GetRootLayer().pseudoRoot.SetInfo(key, src.pseudoRoot.GetInfo(key))
+    stage.GetRootLayer().subLayerPaths.append(str(demo_data / "room.usdc"))
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    for i in range(n):
+        ring = UsdGeom.Xform.Define(stage, f"/World/Ring{i}")
+        a = 2.0 * math.pi * i / max(n, 1)
+        offset = (0.0, 0.0, 0.0) if i == 0 else (1.3 * math.cos(a) - 1.3, 0.0, 1.3 * math.sin(a))
+        ring.AddTranslateOp().Set(Gf.Vec3d(*offset))
+        biker = stage.DefinePrim(f"/World/Ring{i}/Biker")
+        biker.GetReferences().AddReference(str(demo_data / "biker.usdc"), "/World/Biker")
+    stage.GetRootLayer().Save()
+    return path
+
+
+def run(stage: Path, out: Path, frames: str) -> dict:
+    """One in-process ``usdgs process``: the summary plus per-frame shadow and relight seconds."""
+    import usd_gs.pipeline.shot as shot
+    from usd_gs.cli import main
+
+    per_frame: list[float] = []
+    names = ("_shadow_pass", "_relight_jobs", "_relight_pass")  # shadows (and probes), relighting
+    plain = {name: getattr(shot.ShotProcessor, name) for name in names + ("_frame",)}
+
+    def timed(name):
+        def call(self, *a, **k):
+            t = time.perf_counter()
+            try:
+                return plain[name](self, *a, **k)
+            finally:
+                per_frame[-1] += time.perf_counter() - t
+        return call
+
+    def frame(self, *a, **k):
+        per_frame.append(0.0)
+        return plain["_frame"](self, *a, **k)
+
+    for name in names:
+        setattr(shot.ShotProcessor, name, timed(name))
+    shot.ShotProcessor._frame = frame
+    try:
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            assert main(["process", str(stage), "-o", str(out), "--frames", frames, "--json"]) == 0
+        summary = json.loads(buf.getvalue())
+    finally:
+        for name, f in plain.items():
+            setattr(shot.ShotProcessor, name, f)
+    summary["frame_seconds"] = per_frame
+    return summary
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", default="1-6")
+    ap.add_argument("--counts", default="1,2,4,8")
+    ap.add_argument("--demo-data", default=str(REPO / "stages" / "demo_data"))
+    a = ap.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="bench_avatars_"))
+    counts = [int(c) for c in a.counts.split(",")]
+    rows = []
+    for n in counts:
+        s = run(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.lit.usdc", a.frames)
+        steady = s["frame_seconds"][1:] or s["frame_seconds"]
+        rows.append((n, sum(steady) / len(steady), s["seconds_per_frame"], s["frame_seconds"][0]))
+    base = rows[0][1]
+    print(f"frames {a.frames}; per frame: shadows (incl. probe renders) + relighting, mean over frames 2..")
+    print(f"{'avatars':>7s} {'s/frame':>8s} {'x N=1':>6s} {'x N':>6s} {'frame 1':>8s} {'job s/frame':>12s}")
+    for n, steady, job, first in rows:
+        print(f"{n:7d} {steady:8.3f} {steady / base:6.2f} {steady / base / n:6.2f} {first:8.2f} {job:12.3f}")
+
+
+if __name__ == "__main__":
+    main()
