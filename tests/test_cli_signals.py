@@ -43,7 +43,7 @@ def test_signal_inside_an_import_waits_for_it(monkeypatch):
 
 def test_handlers_are_put_back():
     before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGALRM)}
-    previous = cli._handle_sigterm()
+    previous = cli._install_signal_handlers()
     assert signal.getsignal(signal.SIGTERM) is cli._on_signal and signal.getsignal(signal.SIGALRM) is cli._on_recheck
     cli._restore_signals(previous)
     assert {s: signal.getsignal(s) for s in before} == before

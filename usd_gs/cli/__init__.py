@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``usdgs`` console script; returns the process exit code."""
     process_entry = argv is None  # the console script or ``python -m usd_gs.cli``
     argv = _join_negative_values(sys.argv[1:] if argv is None else list(argv))
-    previous = _handle_sigterm()  # first: a SIGTERM during start-up is handled too
+    previous = _install_signal_handlers()  # first: a SIGTERM during start-up is handled too
     try:
         return _main(argv, process_entry)
     except KeyboardInterrupt as exc:  # before the command started: nothing was written
@@ -240,7 +240,7 @@ def _on_recheck(signum, frame):
     _raise_signal(pending)
 
 
-def _handle_sigterm():
+def _install_signal_handlers():
     """Install the SIGTERM, SIGINT and (for signals deferred past an import) SIGALRM handlers, in
     the main thread only; returns the previous handlers (for :func:`_restore_signals`) or None."""
     import signal
@@ -260,7 +260,7 @@ def _handle_sigterm():
 
 
 def _restore_signals(previous: dict) -> None:
-    """Put back the handlers :func:`_handle_sigterm` replaced; a deferred signal is dropped."""
+    """Put back the handlers :func:`_install_signal_handlers` replaced; a deferred signal is dropped."""
     import signal
 
     signal.setitimer(signal.ITIMER_REAL, 0.0)

@@ -84,21 +84,15 @@ class _Background:
         return self._out
 
 
-#: the arrays a SOG decodes into (usd_gs.io.sog._alloc, orientations aside): positions,
-#: log-scales, scales (N, 3), opacities (N,), SH (N, K, 3)
-def _decoded_shapes(n: int, degree: int) -> list[tuple]:
-    return [(n, 3), (n, 3), (n, 3), (n,), (n, (degree + 1) ** 2, 3)]
-
-
 def _early_vt_arrays(path: str, lod: int | None) -> list:
     """``(shape, Vt array)`` for the arrays a SOG input decodes into, sized from its manifests and
     allocated with pxr alone, before numpy loads (so the decode can start as soon as numpy is
     there); [] when the manifests do not parse (the reader then reports why)."""
-    from usd_gs.io.sog_files import manifest_size
+    from usd_gs.io.sog_files import decoded_shapes, manifest_size
     from usd_gs.usd.vt_alloc import new_vt_array
 
     size = manifest_size(path, lod)
-    return [] if size is None else [(shape, new_vt_array(shape)) for shape in _decoded_shapes(*size)]
+    return [] if size is None else [(shape, new_vt_array(shape)) for shape in decoded_shapes(*size)]
 
 
 def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
@@ -122,6 +116,7 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     import gc
 
     from usd_gs.io.sog import load_webp_codec, open_sog
+    from usd_gs.io.sog_files import decoded_shapes
     from usd_gs.usd.bulk import VtBackedPool
 
     opened = open_sog(path, lod, prefetch)
@@ -130,7 +125,7 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     gc.disable()
     reader = _Background(opened.decode, None, pool)  # decodes the first images while the pool fills
     try:
-        pool.fill(_decoded_shapes(opened.count, opened.sh_degree), made)
+        pool.fill(decoded_shapes(opened.count, opened.sh_degree), made)
     except BaseException:
         with contextlib.suppress(BaseException):
             _join(reader)  # (the collector back on)

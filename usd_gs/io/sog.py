@@ -49,6 +49,7 @@ from usd_gs.io.sog_files import (
     SogPrefetch,
     SogSource,
     archive_meta,
+    decoded_shapes,
     libwebp,
     lod_files,
     open_zip,
@@ -106,13 +107,13 @@ def _decode_webp(label: str, name: str, data: bytes, need: int, decoded=None) ->
     format), and every image when libwebp is not found, through Pillow's ``Image.open``, whose
     messages name what it found.
     """
-    size = decoded[1:] if decoded is not None and decoded[0] is not None else webp_size(data)
+    px, size = (decoded[0], decoded[1:]) if decoded is not None and decoded[0] is not None else (None, webp_size(data))
     if size is not None:
         w, h = size
         if w * h < need:
             raise InputFormatError(f"{label}: image '{name}' is {w}x{h} = {w * h} pixels, fewer than "
                                    f"meta.json 'count' {need}")
-        px = decoded[0] if decoded is not None and decoded[0] is not None else webp_rgba(data, size)
+        px = webp_rgba(data, size) if px is None else px
         if px is not None:
             return np.frombuffer(px, np.uint8).reshape(w * h, 4), w, h
     from PIL import Image
@@ -204,10 +205,10 @@ class _Plan:
 def _alloc(n: int, degree: int, empty=None) -> dict:
     """The decoded fields' float32 arrays: ``empty(shape)`` (values 0) for positions, scales,
     log-scales, opacities and SH when given (see :func:`read_sog`), else numpy's."""
-    k = (degree + 1) ** 2
     new = empty or (lambda shape: np.zeros(shape, np.float32))
-    return {"positions": new((n, 3)), "orientations": np.empty((n, 4), np.float32),
-            "log_scales": new((n, 3)), "scales": new((n, 3)), "opacities": new((n,)), "sh": new((n, k, 3))}
+    positions, log_scales, scales, opacities, sh = (new(shape) for shape in decoded_shapes(n, degree))
+    return {"positions": positions, "orientations": np.empty((n, 4), np.float32), "log_scales": log_scales,
+            "scales": scales, "opacities": opacities, "sh": sh}
 
 
 def _to_set(out: dict, label: str) -> GaussianSet:

@@ -257,23 +257,38 @@ def looks_like_sog(path: str) -> bool:
     return os.path.isdir(path) and any(os.path.isfile(os.path.join(path, m)) for m in ("lod-meta.json", "meta.json"))
 
 
+def decoded_shapes(n: int, degree: int) -> list[tuple]:
+    """Shapes of the float32 arrays a SOG of ``n`` Gaussians and SH ``degree`` decodes into, in the
+    order ``usd_gs.io.sog`` allocates them: positions, log-scales, scales (N, 3), opacities (N,),
+    SH (N, K, 3) (orientations apart)."""
+    return [(n, 3), (n, 3), (n, 3), (n,), (n, (degree + 1) ** 2, 3)]
+
+
+def _units(path: str, lod: int | None):
+    """``(source, meta dict)`` of every SOG unit of ``path`` (a LOD set's level ``lod`` as
+    :func:`pick_level` picks it, a ``meta.json`` or a bundled ``.sog``), read without checks (the
+    reader checks). A bundled unit's source is only valid while the generator is not exhausted."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "lod-meta.json" if (p / "lod-meta.json").is_file() else p / "meta.json"
+    if p.name == "lod-meta.json":
+        _, by_level, names = lod_files(str(p), json.loads(p.read_text(encoding="utf-8")))
+        for f in sorted(by_level[pick_level(str(p), p.parent, by_level, names, lod)]):
+            meta_path = p.parent / names[f]
+            yield SogSource(str(meta_path), folder=meta_path.parent), json.loads(meta_path.read_bytes())
+    elif p.suffix.lower() == ".json":
+        yield SogSource(str(p), folder=p.parent), json.loads(p.read_bytes())
+    else:
+        with zipfile.ZipFile(p) as zf:
+            src = SogSource(str(p), archive=zf, prefix=archive_meta(str(p), zf))
+            yield src, json.loads(zf.read(src._member("meta.json")))
+
+
 def manifest_size(path: str, lod: int | None = None) -> tuple[int, int] | None:
     """``(Gaussian count, SH degree)`` of a SOG input from its manifests alone (``lod``: as for
     :func:`pick_level`), or None when they do not parse; checks nothing else (the reader does)."""
     try:
-        p = Path(path)
-        if p.is_dir():
-            p = p / "lod-meta.json" if (p / "lod-meta.json").is_file() else p / "meta.json"
-        if p.name == "lod-meta.json":
-            _, by_level, names = lod_files(str(p), json.loads(p.read_text(encoding="utf-8")))
-            level = pick_level(str(p), p.parent, by_level, names, lod)
-            metas = [json.loads((p.parent / names[f]).read_bytes()) for f in sorted(by_level[level])]
-        elif p.suffix.lower() == ".json":
-            metas = [json.loads(p.read_bytes())]
-        else:
-            with zipfile.ZipFile(p) as zf:
-                prefix = archive_meta(str(p), zf)
-                metas = [json.loads(zf.read(SogSource(str(p), archive=zf, prefix=prefix)._member("meta.json")))]
+        metas = [meta for _, meta in _units(path, lod)]
         count = sum(int(m["count"]) for m in metas)
         degree = max(int(m["shN"]["bands"]) if isinstance(m.get("shN"), dict) else 0 for m in metas)
         return (count, degree) if count >= 0 and 0 <= degree <= 3 else None
@@ -325,25 +340,6 @@ class SogPrefetch:
                 self._cond.notify_all()
 
     def _read(self) -> None:
-        p = Path(self._path)
-        if p.is_dir():
-            p = p / "lod-meta.json" if (p / "lod-meta.json").is_file() else p / "meta.json"
-        if p.name == "lod-meta.json":
-            _, by_level, names = lod_files(str(p), json.loads(p.read_text(encoding="utf-8")))
-            level = pick_level(str(p), p.parent, by_level, names, self._lod)
-            for f in sorted(by_level[level]):
-                self._read_folder(p.parent / names[f])
-        elif p.suffix.lower() == ".json":
-            self._read_folder(p)
-        else:
-            with zipfile.ZipFile(p) as zf:
-                prefix = archive_meta(str(p), zf)
-                src = SogSource(str(p), archive=zf, prefix=prefix)
-                meta = json.loads(zf.read(src._member("meta.json")))
-                for name in image_names(meta):
-                    self._put(src.key(name), zf.read(src._member(name)))
-
-    def _read_folder(self, meta_path: Path) -> None:
-        src = SogSource(str(meta_path), folder=meta_path.parent)
-        for name in image_names(json.loads(meta_path.read_bytes())):
-            self._put(src.key(name), (meta_path.parent / name).read_bytes())
+        for src, meta in _units(self._path, self._lod):
+            for name in image_names(meta):
+                self._put(src.key(name), src.read(name, image=False))
