@@ -124,6 +124,24 @@ def test_main_in_process_returns(tmp_path, capsys):
     assert "500 Gaussians" in capsys.readouterr().out
 
 
+def test_sog_import_is_the_stage_writers_layer_and_holds_nothing_after_main(tmp_path):
+    """A SOG's import (decoded in threads, its extent from the units' extents, its values not
+    checked a second time) writes what write_gaussian_prim writes for the decoded set; in-process
+    ``main`` keeps nothing alive for the process's end."""
+    from usd_gs import cli
+    from usd_gs.io.sog import read_sog, write_sog
+
+    g = random_gaussians(6_000, 0, seed=8)
+    g.positions[:, 0] *= 40.0  # the extent's x faces from a few Gaussians
+    write_sog(tmp_path / "c.sog", g)
+    assert main(["import", str(tmp_path / "c.sog"), "-o", str(tmp_path / "cli.usdc"), "-q"]) == 0
+    assert cli.HELD == []
+    stage = new_stage(default_prim="c")
+    write_gaussian_prim(stage, "/c", read_sog(tmp_path / "c.sog"))
+    save_stage_atomic(stage, tmp_path / "usd.usdc")
+    assert (tmp_path / "cli.usdc").read_bytes() == (tmp_path / "usd.usdc").read_bytes()
+
+
 def test_command_table_matches_the_registrars():
     for name in COMMAND_MODULES:
         module = importlib.import_module(f"usd_gs.cli.{name}")

@@ -284,3 +284,28 @@ def test_vt_backed_pool_uses_arrays_allocated_before_numpy_views():
     assert vt_from_numpy(Vt.FloatArray, c) is made[1][1]
     d[7, 2] = (1.0, 2.0, 3.0)
     assert tuple(made[2][1][7 * 9 + 2]) == (1.0, 2.0, 3.0)
+
+
+@needs_data
+def test_decode_hands_every_units_rows_to_on_rows_and_their_extents_make_the_whole():
+    from usd_gs.extent import ExtentOfParts
+
+    lod = DATA / "scenes" / "flowers" / "lod-meta.json"
+    seen, parts = [], ExtentOfParts(3.0)
+
+    def on_rows(rows):
+        seen.append(rows)
+        parts.add(rows)
+
+    g = sog.open_sog(lod, 1).decode(threads=2, on_rows=on_rows)
+    assert len(seen) == len(sog.open_sog(lod, 1)._plans) > 1
+    starts = sorted(int((r.positions.__array_interface__["data"][0] - g.positions.__array_interface__["data"][0])
+                        // 12) for r in seen)
+    counts = {int((r.positions.__array_interface__["data"][0] - g.positions.__array_interface__["data"][0]) // 12):
+              r.count for r in seen}
+    assert starts[0] == 0 and all(a + counts[a] == b for a, b in zip(starts, starts[1:] + [g.count], strict=True))
+    for r in seen:
+        for name in ("positions", "orientations", "scales", "opacities", "sh"):
+            assert np.shares_memory(getattr(r, name), getattr(g, name)), name
+    box = g.extent(3.0)
+    assert np.array_equal(parts.box(g.count).view(np.uint32), box.view(np.uint32))

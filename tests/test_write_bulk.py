@@ -53,6 +53,40 @@ def test_extent_of_a_small_set_and_an_empty_one():
     assert np.array_equal(gaussian_extent(empty), np.zeros((2, 3), np.float32))
 
 
+@pytest.mark.parametrize("cuts", [(0, 7_000, 7_001, 30_000), (0, 30_000), (0, 100, 4_000, 17_000, 30_000)])
+def test_extent_of_parts_is_the_whole_sets_bit_for_bit(cuts):
+    import threading
+
+    from usd_gs.extent import ExtentOfParts
+
+    rng = np.random.default_rng(len(cuts))
+    g = random_gaussians(30_000, 1, seed=len(cuts))
+    g.scales *= np.exp(rng.normal(0.0, 1.5, g.scales.shape)).astype(np.float32)
+    g.positions += rng.normal(0.0, 50.0, g.positions.shape).astype(np.float32)
+    parts = ExtentOfParts(3.0)
+    spans = list(zip(cuts[:-1], cuts[1:], strict=True))[::-1]  # added last part first, from threads
+    threads = [threading.Thread(target=parts.add, args=(g.subset(np.arange(a, b)),)) for a, b in spans]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert _same_bits(parts.box(g.count), g.extent(3.0))
+    assert parts.box(g.count + 1) is None  # rows missing: no box
+
+
+def test_extent_of_parts_leaves_an_overflow_to_the_whole_set():
+    from usd_gs.extent import ExtentOfParts
+
+    g = random_gaussians(10_000, 0, seed=5)
+    g.scales[77] = 3e38
+    parts = ExtentOfParts(3.0)
+    parts.add(g.subset(np.arange(0, 5_000)))
+    parts.add(g.subset(np.arange(5_000, 10_000)))
+    assert parts.box(g.count) is None
+    with pytest.raises(GaussianDataError, match="element 77"):
+        gaussian_extent(g)
+
+
 @pytest.mark.parametrize("cls,dtype,shape", [
     (Vt.Vec3fArray, np.float32, (3,)), (Vt.FloatArray, np.float32, ()), (Vt.QuatfArray, np.float32, (4,)),
     (Vt.Vec3hArray, np.float16, (3,)), (Vt.HalfArray, np.float16, ()), (Vt.QuathArray, np.float16, (4,)),

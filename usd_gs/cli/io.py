@@ -100,7 +100,8 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     :class:`~usd_gs.io.sog_files.SogPrefetch` started before numpy was imported, whose image
     bytes and pixels are used), then its images decoded in a background thread
     (libwebp and numpy release the GIL) into the Vt arrays that will be written, while this
-    thread imports pxr.Sdf and makes the output layer. Returns the :class:`_Background` reader, or None for other
+    thread imports pxr.Sdf and makes the output layer. Returns the :class:`_Background` reader (its ``extent``: an
+    :class:`~usd_gs.usd.bulk.ExtentOfParts` of the decoded units), or None for other
     formats (read after the imports).
 
     pxr's imports must not overlap with another thread's calls into pxr (seen: 'cannot import
@@ -117,13 +118,15 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
 
     from usd_gs.io.sog import load_webp_codec, open_sog
     from usd_gs.io.sog_files import decoded_shapes
-    from usd_gs.usd.bulk import VtBackedPool
+    from usd_gs.usd.bulk import ExtentOfParts, VtBackedPool
 
     opened = open_sog(path, lod, prefetch)
     load_webp_codec()
     pool = VtBackedPool()
+    extent = ExtentOfParts(3.0)  # each unit's extent in its decoding thread
     gc.disable()
-    reader = _Background(opened.decode, None, pool)  # decodes the first images while the pool fills
+    reader = _Background(opened.decode, None, pool, extent.add)  # decodes the first images while the pool fills
+    reader.extent = extent
     try:
         pool.fill(decoded_shapes(opened.count, opened.sh_degree), made)
     except BaseException:
@@ -178,6 +181,7 @@ def cmd_import(args) -> int:
         layer = new_layer(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
     finally:
         gaussians = None if reader is None else _join(reader)
+    extent = None if reader is None else reader.extent.box(gaussians.count)
     if sequence:
         what = _import_sequence(args, _stage_on(layer), path)
         save_stage_atomic(layer, args.output)
@@ -199,7 +203,8 @@ def cmd_import(args) -> int:
     else:
         # one prim in a new layer: written with Sdf alone (pxr.Usd is imported only for --role);
         # the same specs as write_gaussian_prim on a stage (tests/test_import_layer.py)
-        write_gaussian_layer(layer, str(path), gaussians, keep_raw=not args.no_raw, precision=args.precision)
+        write_gaussian_layer(layer, str(path), gaussians, keep_raw=not args.no_raw, precision=args.precision,
+                             checked=True, extent=extent)
         if args.role:
             from usd_gs.usd.schema import apply_role
 
@@ -209,6 +214,9 @@ def cmd_import(args) -> int:
     if not args.quiet:
         print(f"wrote {args.output}: {path} with {gaussians.count:,} Gaussians{bricks}, SH degree "
               f"{gaussians.sh_degree}, {args.precision} precision")
+    from usd_gs.cli import hold
+
+    hold(layer, gaussians, made)  # freed by the process's end, not here (quick_exit)
     return 0
 
 

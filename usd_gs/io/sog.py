@@ -344,9 +344,12 @@ class OpenedSog:
         self.count = int(sum(pl.count for pl in plans))
         self.sh_degree = max(pl.bands for pl in plans)
 
-    def decode(self, threads: int | None = None, empty=None) -> GaussianSet:
+    def decode(self, threads: int | None = None, empty=None, on_rows=None) -> GaussianSet:
         """The :class:`GaussianSet` (``threads``, ``empty``: see :func:`read_sog`). Uses numpy,
-        ctypes and, for images libwebp does not take, Pillow; nothing else is imported here."""
+        ctypes and, for images libwebp does not take, Pillow; nothing else is imported here.
+        ``on_rows(rows)``: called in the decoding thread with each unit's rows (a
+        :class:`GaussianSet` of views into the result) as soon as they are decoded; what it
+        raises is raised here."""
         import threading
 
         plans, raws = self._plans, self._raws
@@ -361,6 +364,9 @@ class OpenedSog:
                 if not out:
                     out.append(_alloc(self.count, self.sh_degree, empty))
             _decode(plans[i], imgs, out[0], int(starts[i]))
+            if on_rows is not None:
+                rows = slice(int(starts[i]), int(starts[i + 1]))
+                on_rows(_to_set({key: arr[rows] for key, arr in out[0].items()}, plans[i].label))
 
         if workers > 1 and len(plans) > 1:
             with ThreadPoolExecutor(max_workers=workers) as pool:

@@ -131,10 +131,12 @@ class GaussianValues:
     raw: list
 
 
-def gaussian_values(g: GaussianSet, path, keep_raw: bool = True, precision: str = "float") -> GaussianValues:
+def gaussian_values(g: GaussianSet, path, keep_raw: bool = True, precision: str = "float",
+                    extent: np.ndarray | None = None) -> GaussianValues:
     """The arrays :func:`author_gaussian_spec` writes for ``g`` at prim ``path``; ``UserError``
     (or ``GaussianDataError``) naming the attribute and element for a value USD cannot take.
-    Bulk arrays are converted here, before any change block (``vt_from_numpy`` copies once)."""
+    Bulk arrays are converted here, before any change block (``vt_from_numpy`` copies once).
+    ``extent``: ``g``'s 3-sigma extent when the caller has it (:class:`~usd_gs.usd.bulk.ExtentOfParts`)."""
     n = g.count
     k = sh3dgs.num_coeffs(g.sh_degree)
     label = str(path)
@@ -155,7 +157,7 @@ def gaussian_values(g: GaussianSet, path, keep_raw: bool = True, precision: str 
         _check_half(values, {POSITIONS: g.positions, ORIENTATIONS: g.orientations[:, [1, 2, 3, 0]],
                              SCALES: g.scales, OPACITIES: g.opacities, SH_COEFFS: g.sh.reshape(n * k, 3)}, label)
     vt_values = {name: vt_from_numpy(types[name][1], arr) for name, arr in values.items()}
-    extent = Vt.Vec3fArray.FromNumpy(gaussian_extent(g, 3.0))  # == g.extent(3.0), bit for bit
+    extent = Vt.Vec3fArray.FromNumpy(gaussian_extent(g, 3.0) if extent is None else extent)  # == g.extent(3.0)
     raw = []
     if keep_raw:
         if g.log_scales is not None:
@@ -240,17 +242,21 @@ def new_layer(up_axis: str = "Y", meters_per_unit: float = 1.0, default_prim: st
 
 
 def write_gaussian_layer(layer: Sdf.Layer, path, gaussians: GaussianSet, keep_raw: bool = True,
-                         precision: str = "float") -> Sdf.PrimSpec:
+                         precision: str = "float", checked: bool = False,
+                         extent: np.ndarray | None = None) -> Sdf.PrimSpec:
     """``write_gaussian_prim`` (default values) into a layer that holds nothing at ``path`` or
     its ancestors yet (such as a :func:`new_layer`), with ``Sdf`` alone: the same specs that
     ``write_gaussian_prim`` authors on a stage whose root layer that is. Ancestors are defined
-    as ``Xform``. Returns the prim spec."""
+    as ``Xform``. Returns the prim spec. ``checked``: the caller vouches that every value is
+    finite (a capture reader's output: each rejects NaN and infinities naming the element), so
+    :func:`check_gaussians` is not run again. ``extent``: see :func:`gaussian_values`."""
     check_precision(precision)
     path = gaussian_prim_path(path)
-    check_gaussians(gaussians, path)
+    if not checked:
+        check_gaussians(gaussians, path)
     if any(layer.GetPrimAtPath(p) for p in path.GetPrefixes()):
         raise UserError(f"{path}: the layer already has specs at this path or an ancestor")
-    values = gaussian_values(gaussians, path, keep_raw, precision)
+    values = gaussian_values(gaussians, path, keep_raw, precision, extent)
     with Sdf.ChangeBlock():
         for p in path.GetPrefixes():  # what UsdGeom.Xform.Define and UsdVol...Define author
             spec = Sdf.CreatePrimInLayer(layer, p)
