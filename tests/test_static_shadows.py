@@ -65,3 +65,26 @@ def test_empty_scene_gives_ones():
     cfg = DGSMConfig()
     cache = StaticSceneAtlas(GaussianSet.empty(), LIGHT, cfg)
     np.testing.assert_array_equal(cache.transmittance(np.zeros((4, 3))), np.ones(4))
+
+
+def test_bounded_atlas_packs_only_what_the_receivers_reach_and_gives_the_same_bits():
+    """Occluders far from every ray between the light and the receivers are left out of the
+    packing (and packed again when the receivers walk away): the lookups are bit for bit those
+    of the atlas of every occluder."""
+    rng = np.random.default_rng(5)
+    near = _scene(rng)
+    far = _scene(np.random.default_rng(6))
+    far.positions[:, 0] += 30.0  # a second table 30 m away, under no ray to the walker
+    scene = GaussianSet.concatenate([near, far], label="two tables")
+    cfg = DGSMConfig(sampling="center")
+    full = StaticSceneAtlas(scene, LIGHT, cfg, bounded=False)
+    bounded = StaticSceneAtlas(scene, LIGHT, cfg)
+    for x in (0.0, 0.1, 4.0, 29.5):  # the last two leave the reach: two more packings
+        pts = _walker(np.random.default_rng(int(x * 10)), x)
+        a, b = full.transmittance(pts), bounded.transmittance(pts)
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64)), x
+        if x == 0.0:
+            assert (a < 0.5).mean() > 0.2  # under the near table: in its shadow
+        if x == 0.1:
+            assert bounded.kept == near.count and bounded.builds == 1  # the far table left out
+    assert bounded.builds == 3 and bounded.kept == scene.count

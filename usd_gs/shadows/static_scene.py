@@ -15,6 +15,11 @@ refinement contrast (for example a foot just in front of the floor) the lookup i
 exactly on the point's own ray (``dgsm_sample.lookup_point_refined``), so the coarser radial
 spacing costs no accuracy at shadow edges.
 
+The point-light atlas packs only the occluders that can reach a lookup: those near the capsule
+from the light to a ball holding every receiver asked about so far (a scene far from the avatars
+costs nothing per light), packing again with a grown ball when the receivers leave it; the
+lookups are bit for bit those of the atlas of every occluder (``bounded=False``).
+
 :class:`StaticSceneSunAtlas` does the same for a directional light on a fixed lattice orthogonal to
 it (no per-frame grid to fit: the lattice is the shot's). Positions in metres (world space);
 transmittances float64 in [0, 1].
@@ -57,26 +62,84 @@ class _ColumnStore:
 
 class StaticSceneAtlas:
     """Lazily filled DGSM of ``occluders`` (static, world space) for a point light at
-    ``light_position`` (3,) metres; ``K`` radial bins (None: ``2 * cfg.K``)."""
+    ``light_position`` (3,) metres; ``K`` radial bins (None: ``2 * cfg.K``); ``bounded``: pack
+    only the occluders the receivers' reach needs (module docstring), else all of them."""
 
-    def __init__(self, occluders: GaussianSet, light_position, cfg: DGSMConfig, K: int | None = None):
+    def __init__(self, occluders: GaussianSet, light_position, cfg: DGSMConfig, K: int | None = None,
+                 bounded: bool = True):
         self.cfg = cfg
         self.light = np.asarray(light_position, np.float64).reshape(3)
         self.width = int(cfg.atlas_size)
         self.K = int(K or 2 * cfg.K)
         self.count = occluders.count
-        self.occ, self.dir_dep, cov6 = prepare_occluders(occluders, cfg)
+        self._all = occluders
+        self._bounded = bool(bounded)
         ext = occluders.extent(cfg.k_sigma).astype(np.float64) if occluders.count else np.zeros((2, 3))
         corners = np.array([[ext[i, 0], ext[j, 1], ext[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
         self.t_max = dgsm_build.t_max_for(dgsm_build.far_distance(self.light, corners), self.K)
-        wt = self.width // dgsm_build.TILE
-        self.tiles = dgsm_build.bin_tiles(self.light, np.ascontiguousarray(self.occ[:, :3]), cov6, self.width,
-                                          cfg.k_sigma, np.ones(wt * wt, np.bool_)) if self.count else None
+        self.reach: tuple[np.ndarray, float] | None = None  # (centre, radius) of the receivers served
+        self.kept = 0
+        self.builds = 0  # packings of the occluders (a reach that grows packs again)
+        self.occ = self.dir_dep = self.tiles = None
         self.index = np.full(self.width * self.width, -1, np.int32)
         self._columns = _ColumnStore(self.K)
         self.pixels = np.zeros(0, np.int64)
         self.pairs = 0
         self.erf_evals = 0
+        if not self._bounded:
+            self._build(np.arange(self.count))
+
+    def _build(self, keep: np.ndarray) -> None:
+        """Pack and bin the occluders ``keep`` (increasing indices); no column computed yet."""
+        sub = self._all if keep.size == self.count else self._all.subset(keep)
+        self.kept = int(keep.size)
+        self.builds += 1
+        self.occ, self.dir_dep, cov6 = prepare_occluders(sub, self.cfg)
+        wt = self.width // dgsm_build.TILE
+        self.tiles = dgsm_build.bin_tiles(self.light, np.ascontiguousarray(self.occ[:, :3]), cov6, self.width,
+                                          self.cfg.k_sigma, np.ones(wt * wt, np.bool_)) if keep.size else None
+        self.index = np.full(self.width * self.width, -1, np.int32)
+        self._columns = _ColumnStore(self.K)
+        self.pixels = np.zeros(0, np.int64)
+        self.pairs = 0
+        self.erf_evals = 0
+
+    def _reach_for(self, pts: np.ndarray) -> None:
+        """Bound the occluders by the receivers: when ``pts`` leave the current reach (a ball), a
+        reach holding them and the old one (grown by half, at least 1 m more) is taken and the
+        occluders that can matter to a lookup inside it are packed again (columns recomputed)."""
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        if self.reach is not None:
+            c, r = self.reach
+            if np.sqrt(np.max(np.sum((pts - c) ** 2, axis=1))) <= r:
+                return
+            lo, hi = np.minimum(lo, c - r), np.maximum(hi, c + r)
+        centre = 0.5 * (lo + hi)
+        radius = 0.5 * float(np.linalg.norm(hi - lo))
+        radius = 1.5 * radius + 1.0
+        self.reach = (centre, radius)
+        self._build(np.flatnonzero(self._in_reach(centre, radius)))
+
+    def _in_reach(self, centre: np.ndarray, radius: float) -> np.ndarray:
+        """(N,) bool: the occluders whose ``k_sigma`` sphere comes within ``radius`` plus a margin of
+        the segment from the light to ``centre``: that capsule holds every ray from the light to a
+        point of the reach, so an occluder outside it adds nothing to a voxel a lookup there reads.
+        The margin covers the voxels those lookups blend: one radial bin beyond the point and the
+        neighbouring pixels' rays (two pixel angles of the octahedral map, at most 4/W radians)."""
+        g = self._all
+        p = g.positions.astype(np.float64)
+        r_occ = self.cfg.k_sigma * g.scales.max(axis=1).astype(np.float64)
+        axis = centre - self.light
+        length = float(np.linalg.norm(axis))
+        far = length + radius + self.t_max / self.K
+        margin = self.t_max / self.K + 2.0 * (4.0 / self.width) * far
+        if length <= 0.0:
+            d = np.linalg.norm(p - self.light, axis=1)
+        else:
+            u = axis / length
+            t = np.clip((p - self.light) @ u, 0.0, length)
+            d = np.linalg.norm(p - (self.light + t[:, None] * u), axis=1)
+        return d <= radius + margin + r_occ
 
     @property
     def computed_pixels(self) -> int:
@@ -116,6 +179,10 @@ class StaticSceneAtlas:
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         if self.count == 0 or pts.shape[0] == 0:
             return np.ones(pts.shape[0])
+        if self._bounded:
+            self._reach_for(pts)
+            if self.kept == 0:
+                return np.ones(pts.shape[0])
         self._extend(pts)
         atlas = self.atlas()
         if self.cfg.refine_contrast is None:
