@@ -76,14 +76,17 @@ def sky_light(sky: se.SkyEstimate, up_axis: str, h: int = 32, w: int = 64) -> Sh
 
 def _region(proc, frames):
     """(centroid (3,), ground hint or None, scene GaussianSet or None) of the shot's avatars."""
-    scene = [proc.static[r.path] for r in proc.roles if r.role == "scene" and not r.per_frame]
+    paths = [r.path for r in proc.roles if r.role == "scene" and not r.per_frame]
+    scene = [proc.static[p] for p in paths]
     if not scene:
         return None, None, None
     movers = [r.path for r in proc.roles if r.role == "avatar"] or [r.path for r in proc.roles if r.per_frame]
     picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
     sets = [proc._read(p, f) for p in movers for f in picks]
     sets = [g for g in sets if g.count]
-    whole = GaussianSet.concatenate(scene, label="scene")
+    recv = getattr(proc, "_static_recv", None)  # the shot's static receivers: the same prims, concatenated once
+    same = recv is not None and getattr(proc, "_static_recv_paths", None) == paths
+    whole = recv.gaussians if same else GaussianSet.concatenate(scene, label="scene")
     if not sets:
         return alpha_weighted_centroid(whole), None, whole
     up = se.up_vector(proc.dgsm.up_axis)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom
 
+from numba_kernels.capsule import within_capsule
 from numba_kernels.cubemap_dirs import cube_face_solid_angles
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from numba_kernels.thread_chunks import thread_count
@@ -61,7 +62,7 @@ from usd_gs.shadows.shot import (
     shared_transmittance,
 )
 from usd_gs.shadows.sky_occlusion import hidden_sky_shares, receiver_normals, sky_factors_from_shares
-from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, StaticSceneAtlas, StaticSceneSunAtlas
+from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, BlockExtents, StaticSceneAtlas, StaticSceneSunAtlas
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
 from usd_gs.usd.lux import ShotLight, read_stage_lights
@@ -299,7 +300,8 @@ class ShotProcessor:
         self._static_recv = Receivers.build([(p, self.static[p]) for p in self._static_recv_paths])
         self._spheres = prim_spheres(self._static_recv, self.dgsm.k_sigma)
         static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
-        casters = Receivers.build([(p, self.static[p]) for p in static_casters])
+        casters = (self._static_recv if static_casters == self._static_recv_paths  # (one concatenation)
+                   else Receivers.build([(p, self.static[p]) for p in static_casters]))
         self._scene_block = casters.gaussians if static_casters else None
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
 
@@ -813,8 +815,11 @@ class ShotProcessor:
         without the light's own emitter Gaussians (:meth:`_emitter_keep`)."""
         key = ("atlas", tuple(np.round(light.position, 6)))
         if key not in self._scene_packs:
-            self._scene_packs[key] = StaticSceneAtlas(self._scene_block.subset(self._emitter_keep(light)),
-                                                      light.position, self._centre_cfg)
+            if "block extents" not in self._scene_packs:
+                self._scene_packs["block extents"] = BlockExtents(self._scene_block, self._centre_cfg.k_sigma)
+            self._scene_packs[key] = StaticSceneAtlas(self._scene_block, light.position, self._centre_cfg,
+                                                      keep=self._emitter_keep(light),
+                                                      extents=self._scene_packs["block extents"])
         return self._scene_packs[key]
 
     def _static_sun_atlas(self, light):
@@ -837,7 +842,7 @@ class ShotProcessor:
             keep = np.ones(block.count, bool)
             if light.kind == "point":
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * light.radius)
-                keep = np.sum((block.positions.astype(np.float64) - light.position) ** 2, axis=1) > r * r
+                keep = ~within_capsule(block.positions, light.position, light.position, r)
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 

@@ -252,11 +252,22 @@ def classify_capture(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_
 
 
 # ----------------------------------------------------------------------------- ground and casters
-def smallest_axes(g: GaussianSet) -> np.ndarray:
-    """(N, 3) unit axis of each Gaussian's smallest scale (its surface normal up to sign)."""
-    r = quaternion_to_matrix(g.orientations.astype(np.float64))
-    k = np.argmin(g.scales, axis=1)
-    return r[np.arange(g.count), :, k]
+def smallest_axes(g: GaussianSet, idx: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) unit axis of each Gaussian's smallest scale (its surface normal up to sign); ``idx``:
+    of those rows only (M, 3), the same values."""
+    q, s = (g.orientations, g.scales) if idx is None else (g.orientations[idx], g.scales[idx])
+    r = quaternion_to_matrix(q.astype(np.float64))
+    k = np.argmin(s, axis=1)
+    return r[np.arange(len(s)), :, k]
+
+
+def _flat_among(g: GaussianSet, sel: np.ndarray, up: np.ndarray, flat_cos: float) -> np.ndarray:
+    """``sel`` (N,) bool narrowed to the Gaussians whose smallest axis is within ``flat_cos`` of
+    ``up`` (the axes are computed for the selected rows only)."""
+    idx = np.flatnonzero(sel)
+    out = np.zeros_like(sel)
+    out[idx[np.abs(smallest_axes(g, idx) @ up) >= flat_cos]] = True
+    return out
 
 
 def ground_height(g: GaussianSet, up: np.ndarray, centre, radius: float, hint: float | None, search: float,
@@ -269,10 +280,10 @@ def ground_height(g: GaussianSet, up: np.ndarray, centre, radius: float, hint: f
     c = np.asarray(centre, np.float64)
     horiz = (p - c) - np.outer(h - c @ up, up)
     near = np.einsum("ij,ij->i", horiz, horiz) <= radius * radius
-    flat = np.abs(smallest_axes(g) @ up) >= flat_cos
-    sel = near & flat & (g.opacities > 0.2)
+    sel = near & (g.opacities > 0.2)
     if hint is not None:
         sel &= np.abs(h - hint) <= search
+    sel = _flat_among(g, sel, up, flat_cos)
     if sel.sum() < 10:
         return None
     s = np.sort(g.scales[sel], axis=1)
@@ -303,9 +314,8 @@ def _ground_split(g: GaussianSet, up, centre, cfg: CaptureConfig, hint) -> _Grou
     c = np.asarray(centre, np.float64)
     horiz = (p - c) - np.outer(h - c @ up, up)
     d2 = np.einsum("ij,ij->i", horiz, horiz)
-    flat = np.abs(smallest_axes(g) @ up) >= cfg.flat_cos
-    recv = np.flatnonzero((np.abs(h - h0) <= cfg.ground_band) & flat & (g.opacities > 0.3)
-                          & (d2 <= cfg.receiver_radius ** 2))
+    recv = np.flatnonzero(_flat_among(g, (np.abs(h - h0) <= cfg.ground_band) & (g.opacities > 0.3)
+                                      & (d2 <= cfg.receiver_radius ** 2), up, cfg.flat_cos))
     casters = np.flatnonzero((h > h0 + cfg.ground_band) & (d2 <= cfg.caster_radius ** 2) & (g.opacities > 1 / 255))
     if recv.size > cfg.max_receivers:
         rng = np.random.default_rng(0)
@@ -694,26 +704,48 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
     plausible light for the shot: below the floor (``floor_height`` - margin, the avatars'
     ground) or hidden from every point of ``region_points`` (M, 3) by the scene's own Gaussians
     (the DGSM's absorption model, eq. 1-5, evaluated exactly on the few rays from the candidate
-    to the points, ``usd_gs.shadows.dgsm.exact_transmittance``; the candidate's own emitter
-    Gaussians within ``emitter_radius`` left out): best transmittance < ``min_visibility``.
+    to the points, ``usd_gs.shadows.dgsm.exact_transmittance``, over the Gaussians within
+    :data:`_OFF_RAY_SIGMAS` sigmas of those rays; the candidate's own emitter Gaussians within
+    ``emitter_radius`` left out): best transmittance < ``min_visibility``.
     Sets ``visibility``; returns ``candidates``."""
 
     cfg = (config or CaptureConfig()).in_scene_units(meters_per_unit)
     up = up_vector(up_axis)
-    p = scene.positions.astype(np.float64)
+    from numba_kernels.capsule import within_capsule
+
+    reach = _OFF_RAY_SIGMAS * scene.scales.max(axis=1) if scene.count else np.zeros(0, np.float32)
     pts = np.asarray(region_points, np.float64).reshape(-1, 3)
     for c in candidates:
         if floor_height is not None and float(c.position @ up) < floor_height - cfg.floor_margin:
             c.rejected = (f"{floor_height - float(c.position @ up):.2f} below the floor the avatars stand on "
                           "(a reflection in the floor, not a light)")
             continue
-        keep = np.flatnonzero(np.sum((p - c.position) ** 2, axis=1) > cfg.emitter_radius ** 2)
+        keep = np.flatnonzero(~within_capsule(scene.positions, c.position, c.position, cfg.emitter_radius)
+                              & _near_rays(scene.positions, reach, c.position, pts))
         vis = float(np.max(exact_transmittance(scene.subset(keep), pts, c.position))) if pts.size else 1.0
         c.visibility = vis
         if vis < cfg.min_visibility:
             c.rejected = (f"hidden from the avatars' region by the scene (best transmittance {vis:.2f}): a bright "
                           "patch behind or inside a surface")
     return candidates
+
+
+#: occluders farther than this many of their largest sigmas from every ray a visibility test
+#: casts are left out of it: their optical depth on the ray is below exp(-32) of their peak
+_OFF_RAY_SIGMAS = 8.0
+
+
+def _near_rays(p: np.ndarray, reach: np.ndarray, origin: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(N,) bool: the points ``p`` (N, 3) within ``reach`` (N,) of the capsule that holds every
+    segment from ``origin`` to a point of ``targets`` (M, 3): around the segment to their centre,
+    with their spread around it as its radius."""
+    from numba_kernels.capsule import within_capsule
+
+    if targets.size == 0:
+        return np.zeros(len(p), bool)
+    centre = targets.mean(axis=0)
+    spread = float(np.sqrt(np.max(np.sum((targets - centre) ** 2, axis=1))))
+    return within_capsule(p, origin, centre, spread, reach)
 
 
 def region_points(centre, up_axis: str, offset: float) -> np.ndarray:

@@ -60,24 +60,76 @@ class _ColumnStore:
         return self._buf[: self.size]
 
 
+class BlockExtents:
+    """``GaussianSet.extent`` of rows of one large set, from extents of its fixed row chunks
+    computed once: :meth:`of` a row mask recomputes only the chunks the mask cuts into. The same
+    bits as the extent of the masked subset (float64 minima and maxima, rounded to float32 once)."""
+
+    CHUNK = 1 << 16
+
+    def __init__(self, g: GaussianSet, n_sigma: float):
+        self.g, self.n_sigma = g, float(n_sigma)
+        self._chunks: dict[int, np.ndarray | None] = {}
+
+    def _box(self, a: int, b: int, rows: np.ndarray | None = None) -> np.ndarray | None:
+        from numba_kernels.extent import gaussian_extent
+
+        g = self.g
+        if rows is None:
+            return gaussian_extent(g.positions[a:b], g.orientations[a:b], g.scales[a:b], self.n_sigma)
+        if not rows.size:
+            return None
+        idx = a + rows
+        return gaussian_extent(g.positions[idx], g.orientations[idx], g.scales[idx], self.n_sigma)
+
+    def of(self, keep: np.ndarray | None = None) -> np.ndarray:
+        """(2, 3) float32 extent of the rows ``keep`` (N,) bool (None: every row) at least one of
+        which is kept; ``GaussianDataError`` as ``GaussianSet.extent`` for a box that overflows."""
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for a in range(0, self.g.count, self.CHUNK):
+            b = min(a + self.CHUNK, self.g.count)
+            part = None if keep is None else keep[a:b]
+            if part is None or part.all():
+                if a not in self._chunks:
+                    self._chunks[a] = self._box(a, b)
+                box = self._chunks[a]
+            else:
+                box = self._box(a, b, np.flatnonzero(part))
+                if box is None and not part.any():
+                    continue
+            if box is None:  # a box beyond float32: the subset's own extent names the element
+                sub = self.g if keep is None else self.g.subset(keep)
+                return sub.extent(self.n_sigma)
+            lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
+        return np.stack([lo, hi]).astype(np.float32)
+
+
 class StaticSceneAtlas:
     """Lazily filled DGSM of ``occluders`` (static, world space) for a point light at
     ``light_position`` (3,) metres; ``K`` radial bins (None: ``2 * cfg.K``); ``bounded``: pack
     only the occluders the receivers' reach needs (module docstring), else all of them."""
 
     def __init__(self, occluders: GaussianSet, light_position, cfg: DGSMConfig, K: int | None = None,
-                 bounded: bool = True):
+                 bounded: bool = True, keep: np.ndarray | None = None, extents: BlockExtents | None = None):
         self.cfg = cfg
         self.light = np.asarray(light_position, np.float64).reshape(3)
         self.width = int(cfg.atlas_size)
         self.K = int(K or 2 * cfg.K)
-        self.count = occluders.count
         self._all = occluders
+        self._keep = None if keep is None or keep.all() else np.asarray(keep, bool)
+        self.count = occluders.count if self._keep is None else int(self._keep.sum())
         self._bounded = bool(bounded)
-        ext = occluders.extent(cfg.k_sigma).astype(np.float64) if occluders.count else np.zeros((2, 3))
+        if not self.count:
+            ext = np.zeros((2, 3))
+        elif extents is not None:
+            ext = extents.of(self._keep).astype(np.float64)
+        else:
+            ext = (occluders if self._keep is None else occluders.subset(self._keep)).extent(cfg.k_sigma).astype(
+                np.float64)
         corners = np.array([[ext[i, 0], ext[j, 1], ext[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
         self.t_max = dgsm_build.t_max_for(dgsm_build.far_distance(self.light, corners), self.K)
         self.reach: tuple[np.ndarray, float] | None = None  # (centre, radius) of the receivers served
+        self._r_occ = None  # (N,) the occluders' k-sigma radii, for the reach test
         self.kept = 0
         self.builds = 0  # packings of the occluders (a reach that grows packs again)
         self.occ = self.dir_dep = self.tiles = None
@@ -87,11 +139,11 @@ class StaticSceneAtlas:
         self.pairs = 0
         self.erf_evals = 0
         if not self._bounded:
-            self._build(np.arange(self.count))
+            self._build(np.arange(occluders.count) if self._keep is None else np.flatnonzero(self._keep))
 
     def _build(self, keep: np.ndarray) -> None:
         """Pack and bin the occluders ``keep`` (increasing indices); no column computed yet."""
-        sub = self._all if keep.size == self.count else self._all.subset(keep)
+        sub = self._all if keep.size == self._all.count else self._all.subset(keep)
         self.kept = int(keep.size)
         self.builds += 1
         self.occ, self.dir_dep, cov6 = prepare_occluders(sub, self.cfg)
@@ -118,7 +170,8 @@ class StaticSceneAtlas:
         radius = 0.5 * float(np.linalg.norm(hi - lo))
         radius = 1.5 * radius + 1.0
         self.reach = (centre, radius)
-        self._build(np.flatnonzero(self._in_reach(centre, radius)))
+        near = self._in_reach(centre, radius)
+        self._build(np.flatnonzero(near if self._keep is None else near & self._keep))
 
     def _in_reach(self, centre: np.ndarray, radius: float) -> np.ndarray:
         """(N,) bool: the occluders whose ``k_sigma`` sphere comes within ``radius`` plus a margin of
@@ -126,20 +179,14 @@ class StaticSceneAtlas:
         point of the reach, so an occluder outside it adds nothing to a voxel a lookup there reads.
         The margin covers the voxels those lookups blend: one radial bin beyond the point and the
         neighbouring pixels' rays (two pixel angles of the octahedral map, at most 4/W radians)."""
-        g = self._all
-        p = g.positions.astype(np.float64)
-        r_occ = self.cfg.k_sigma * g.scales.max(axis=1).astype(np.float64)
-        axis = centre - self.light
-        length = float(np.linalg.norm(axis))
+        from numba_kernels.capsule import within_capsule
+
+        if self._r_occ is None:
+            self._r_occ = self.cfg.k_sigma * self._all.scales.max(axis=1)
+        length = float(np.linalg.norm(centre - self.light))
         far = length + radius + self.t_max / self.K
         margin = self.t_max / self.K + 2.0 * (4.0 / self.width) * far
-        if length <= 0.0:
-            d = np.linalg.norm(p - self.light, axis=1)
-        else:
-            u = axis / length
-            t = np.clip((p - self.light) @ u, 0.0, length)
-            d = np.linalg.norm(p - (self.light + t[:, None] * u), axis=1)
-        return d <= radius + margin + r_occ
+        return within_capsule(self._all.positions, self.light, centre, radius + margin, self._r_occ)
 
     @property
     def computed_pixels(self) -> int:

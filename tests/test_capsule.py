@@ -1,0 +1,37 @@
+"""numba_kernels.capsule against its numpy reference and hand-checked cases."""
+
+import numpy as np
+
+from numba_kernels.capsule import within_capsule
+from numba_kernels.reference.capsule import within_capsule as reference
+
+
+def test_kernel_equals_the_reference_away_from_the_boundary():
+    rng = np.random.default_rng(2)
+    p = rng.uniform(-5, 5, (200_000, 3)).astype(np.float32)
+    extra = rng.uniform(0, 0.5, len(p))
+    a, b = np.array([-1.0, 0.5, 2.0]), np.array([3.0, -1.0, 0.0])
+    got, ref = within_capsule(p, a, b, 1.2, extra), reference(p, a, b, 1.2, extra)
+    # the two can only differ where the squared distance is within rounding of the radius
+    v = p.astype(np.float64) - a
+    u = (b - a) / np.linalg.norm(b - a)
+    t = np.clip(v @ u, 0, np.linalg.norm(b - a))
+    d = np.linalg.norm(v - t[:, None] * u, axis=1)
+    clear = np.abs(d - (1.2 + extra)) > 1e-9
+    assert np.array_equal(got[clear], ref[clear]) and 0.02 < got.mean() < 0.5
+
+
+def test_hand_cases_segment_ends_and_a_ball():
+    a, b = np.zeros(3), np.array([10.0, 0.0, 0.0])
+    pts = np.array([[5.0, 0.99, 0.0],   # beside the middle, inside
+                    [5.0, 1.01, 0.0],   # just outside
+                    [-0.9, 0.0, 0.3],   # behind a, within the end cap
+                    [-1.1, 0.0, 0.0],   # behind a, outside the cap
+                    [10.7, 0.7, 0.0],   # past b: distance 0.99 from b
+                    [12.0, 0.0, 0.0]])  # past b, outside
+    assert within_capsule(pts, a, b, 1.0).tolist() == [True, False, True, False, True, False]
+    assert within_capsule(pts, a, b, 0.5, np.full(6, 0.5)).tolist() == [True, False, True, False, True, False]
+    # a == b: a ball, float64 positions too
+    ball = within_capsule(np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 1.0]]), a, a, 1.0)
+    assert ball.tolist() == [True, False]
+    assert within_capsule(np.zeros((0, 3), np.float32), a, b, 1.0).shape == (0,)
