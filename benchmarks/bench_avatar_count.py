@@ -25,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -52,7 +54,7 @@ def make_shot(demo_data: Path, n: int, folder: Path) -> Path:
     return path
 
 
-def run(stage: Path, out: Path, frames: str) -> dict:
+def run(stage: Path, out: Path, frames: str, config: Path | None = None) -> dict:
     """One in-process ``usdgs process``: the summary plus per-frame shadow and relight seconds."""
     import usd_gs.pipeline.shot as shot
     from usd_gs.cli import main
@@ -80,7 +82,8 @@ def run(stage: Path, out: Path, frames: str) -> dict:
     try:
         buf = io.StringIO()
         with contextlib.redirect_stdout(buf):
-            assert main(["process", str(stage), "-o", str(out), "--frames", frames, "--json"]) == 0
+            extra = ["--config", str(config)] if config else []
+            assert main(["process", str(stage), "-o", str(out), "--frames", frames, "--json", *extra]) == 0
         summary = json.loads(buf.getvalue())
     finally:
         for name, f in plain.items():
@@ -94,6 +97,10 @@ def main() -> None:
     ap.add_argument("--frames", default="1-6")
     ap.add_argument("--counts", default="1,2,4,8")
     ap.add_argument("--demo-data", default=str(REPO / "stages" / "demo_data"))
+    ap.add_argument("--exact-count", type=int, default=4,
+                    help="also run this many avatars with every moving receiver Gaussian looking up the other "
+                         "avatars' shadows (moving_receiver_samples 0) and print the relit colour difference "
+                         "(0: skip)")
     a = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_avatars_"))
     counts = [int(c) for c in a.counts.split(",")]
@@ -107,6 +114,19 @@ def main() -> None:
     print(f"{'avatars':>7s} {'s/frame':>8s} {'x N=1':>6s} {'x N':>6s} {'frame 1':>8s} {'job s/frame':>12s}")
     for n, steady, job, first in rows:
         print(f"{n:7d} {steady:8.3f} {steady / base:6.2f} {steady / base / n:6.2f} {first:8.2f} {job:12.3f}")
+    if a.exact_count in counts:
+        from bench_far_field import dc_difference
+
+        n = a.exact_count
+        cfg = work / "every_gaussian.json"
+        cfg.write_text(json.dumps({"moving_receiver_samples": 0}))
+        s = run(work / f"bikers_{n}.usda", work / f"bikers_{n}.exact.lit.usdc", a.frames, cfg)
+        steady = s["frame_seconds"][1:] or s["frame_seconds"]
+        d = dc_difference(work / f"bikers_{n}.lit.usdc", work / f"bikers_{n}.exact.lit.usdc")
+        print(f"{n} avatars, every moving receiver Gaussian looking up (moving_receiver_samples 0): "
+              f"{sum(steady) / len(steady):.3f} s/frame ({sum(steady) / len(steady) / base:.2f}x N=1); relit DC "
+              f"colour of the default against it: max {255 * d.max():.2f}/255, mean {255 * d.mean():.4f}/255, "
+              f"99.9th percentile {255 * np.percentile(d, 99.9):.3f}/255")
 
 
 if __name__ == "__main__":

@@ -177,3 +177,11 @@ def test_minor_items(shot, tmp_path, capsys):
     capsys.readouterr()
     assert main(["export", str(bad), "-o", str(tmp_path / "x.ply")]) == 2
     assert "e+308" not in _err(capsys)
+
+
+@pytest.mark.parametrize("value", [-1, 2.5, True, "many"])
+def test_moving_receiver_samples_must_be_a_count(shot, tmp_path, capsys, value):
+    c = tmp_path / "c.json"
+    c.write_text(json.dumps({"moving_receiver_samples": value}))
+    assert main(["process", str(shot), "--config", str(c), "-o", str(tmp_path / "o.usdc"), "-q"]) == 2
+    assert "moving_receiver_samples" in _err(capsys)

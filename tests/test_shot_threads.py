@@ -50,3 +50,28 @@ def test_threads_give_the_one_thread_output(tmp_path):
     finally:
         numba.set_num_threads(before)
     assert stage_differences(tmp_path / "one.usdc", tmp_path / "two.usdc", [1, 2, 3]) == []
+
+
+def test_avatar_shadows_at_samples_spread_to_every_gaussian():
+    """_spread_samples: each Gaussian of a sampled receiver takes its nearest sample's value;
+    an unsampled receiver keeps its own lookups; samples outside the cone count as lit."""
+    import numpy as np
+
+    from usd_gs.pipeline.shot import _spread_samples
+    from usd_gs.shadows.shot import Receivers
+
+    class _G:
+        def __init__(self, n):
+            self.count = n
+
+    drecv = Receivers(_G(10), {"/A": (0, 6), "/B": (6, 10)})
+    sel = np.array([0, 3])  # /A sampled at its Gaussians 0 and 3
+    nearest = np.array([0, 0, 1, 1, 1, 0])
+    maps = {"/A": (sel, nearest), "/B": (np.arange(4), None)}
+    idx = np.array([3, 7, 9])  # /A's sample 3, /B's Gaussians 1 and 3 (absolute indices)
+    val = np.array([0.25, 0.5, 0.75])
+    i, v = _spread_samples((idx, val), ["/A", "/B"], maps, drecv)
+    assert i.tolist() == [2, 3, 4, 7, 9] and v.tolist() == [0.25, 0.25, 0.25, 0.5, 0.75]
+    # nothing sampled: the lookups as they are
+    same = _spread_samples((idx[1:], val[1:]), ["/B"], maps, drecv)
+    assert same[0].tolist() == [7, 9] and same[1].tolist() == [0.5, 0.75]

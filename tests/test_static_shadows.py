@@ -88,3 +88,43 @@ def test_bounded_atlas_packs_only_what_the_receivers_reach_and_gives_the_same_bi
         if x == 0.1:
             assert bounded.kept == near.count and bounded.builds == 1  # the far table left out
     assert bounded.builds == 3 and bounded.kept == scene.count
+
+
+def test_block_extents_of_a_mask_are_the_subsets_extent_bit_for_bit():
+    import pytest
+
+    from usd_gs.errors import GaussianDataError
+    from usd_gs.shadows.static_scene import BlockExtents
+    from usd_gs.synthetic import random_gaussians
+
+    g = random_gaussians(150_000, 0, seed=3)  # three chunks of 65,536 rows
+    g.positions[:, 0] *= 20.0
+    ext = BlockExtents(g, 3.0)
+    rng = np.random.default_rng(1)
+    faces = np.concatenate([np.argmin(g.positions, axis=0), np.argmax(g.positions, axis=0)])
+    masks = [None, rng.random(g.count) > 0.3, np.ones(g.count, bool)]
+    masks.append(np.ones(g.count, bool))
+    masks[-1][faces] = False  # the Gaussians nearest the box's faces left out
+    masks.append(np.zeros(g.count, bool))
+    masks[-1][70_000:80_000] = True  # whole chunks left out
+    for keep in masks:
+        want = g.extent(3.0) if keep is None else g.subset(keep).extent(3.0)
+        assert np.array_equal(ext.of(keep).view(np.uint32), want.view(np.uint32))
+    g.scales[100_000] = 3e38
+    keep = rng.random(g.count) > 0.5
+    keep[100_000] = True
+    with pytest.raises(GaussianDataError, match="element"):
+        BlockExtents(g, 3.0).of(keep)
+
+
+def test_atlas_of_a_masked_block_is_the_atlas_of_the_subset():
+    from usd_gs.shadows.static_scene import BlockExtents
+
+    rng = np.random.default_rng(7)
+    scene = _scene(rng)
+    keep = rng.random(scene.count) > 0.2
+    cfg = DGSMConfig(sampling="center")
+    pts = _walker(np.random.default_rng(2), 0.05)
+    a = StaticSceneAtlas(scene.subset(keep), LIGHT, cfg).transmittance(pts)
+    b = StaticSceneAtlas(scene, LIGHT, cfg, keep=keep, extents=BlockExtents(scene, cfg.k_sigma)).transmittance(pts)
+    assert np.array_equal(a.view(np.uint64), b.view(np.uint64)) and (a < 0.5).mean() > 0.1

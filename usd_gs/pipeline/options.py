@@ -55,6 +55,9 @@ class ProcessOptions:
     self_shadow_kappa: float = 0.25  # DGSM absorption knob (eq. 5 kappa) of a prim's own shadow on itself
     self_shadow_lights: str = "distant"  # self-shadow from 'distant' lights only (the sun) or from 'all'
     self_shadow_samples: int = 4096  # Gaussians per relit prim that sample its self-shadow (nearest for the rest)
+    # Gaussians per moving receiver that sample the shadows other moving casters put on it (the
+    # rest take their nearest sample's; 0: every Gaussian looks up)
+    moving_receiver_samples: int = 4096
     aovs: tuple[str, ...] = ()  # diagnostic primvars to write too: names of usd_gs.usd.output_author.AOVS
     precision: str = "half"  # of the SH written: 'half' | 'float'
     sh_tolerance: float = SH_TOLERANCE  # display-colour change below which an SH sample is held
@@ -103,6 +106,10 @@ class ProcessOptions:
             raise UserError(f"self_shadow_lights must be 'distant' or 'all', got '{self.self_shadow_lights}'")
         if not self.self_shadow_kappa > 0.0:
             raise UserError(f"self_shadow_kappa must be > 0, got {self.self_shadow_kappa}")
+        m = self.moving_receiver_samples
+        if isinstance(m, bool) or not (isinstance(m, int) and m >= 0):
+            raise UserError(f"moving_receiver_samples must be an integer >= 0 (0: every Gaussian), "
+                            f"got {self.moving_receiver_samples!r}")
         if not self.self_shadow_bias >= 0.0:
             raise UserError(f"self_shadow_bias must be >= 0 metres, got {self.self_shadow_bias}")
         self.dgsm.validate()

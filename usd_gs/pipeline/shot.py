@@ -148,6 +148,33 @@ def run_tasks(tasks: list) -> list:
         return list(pool.map(lambda task: task(), tasks))
 
 
+def _spread_samples(res, prims: list, maps: dict, drecv: Receivers):
+    """``(idx, T)`` over every Gaussian of the moving receivers ``prims`` from ``res``, the
+    ``(idx, T)`` of their sample Gaussians (``maps[p] = (sel, nearest)``; ``nearest`` None: every
+    Gaussian was a sample): each Gaussian takes its nearest sample's transmittance (1 where that
+    sample was outside the caster's shadow cone)."""
+    idx, val = res
+    if all(maps[p][1] is None for p in prims):
+        return idx, val
+    out_i, out_v = [], []
+    for p in prims:
+        a, b = drecv.ranges[p]
+        sel, nearest = maps[p]
+        inside = (idx >= a) & (idx < b)
+        if nearest is None:
+            out_i.append(idx[inside])
+            out_v.append(val[inside])
+            continue
+        vs = np.ones(sel.size)
+        vs[np.searchsorted(sel, idx[inside] - a)] = val[inside]
+        full = vs[nearest]
+        moved = np.flatnonzero(full < 1.0)
+        out_i.append(a + moved)
+        out_v.append(full[moved])
+    return (np.concatenate(out_i).astype(np.int64) if out_i else np.zeros(0, np.int64),
+            np.concatenate(out_v) if out_v else np.zeros(0))
+
+
 def _self_shadow_task(g, part, light, cfg: DGSMConfig, buffers=None):
     """``(idx, T)`` of a prim's self-shadow samples ``part`` through its own DGSM (``cfg``'s kappa;
     ``buffers``: ``prepare_occluders``' to reuse)."""
@@ -185,6 +212,7 @@ class ShotProcessor:
         # caches that live for the whole shot
         self._shot_lights: list[ShotLight] | None = None
         self._scene_packs: dict = {}  # per light: the static scene's atlas and emitter mask
+        self._recv_samples: dict = {}  # moving receivers' sample maps (_receiver_sample_map)
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
@@ -490,10 +518,32 @@ class ShotProcessor:
             part_s = receiver_points(g, srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
         part_d = None
         dhit = [p for p in prims_in_shadow(movers.receiver_spheres, g, light, cfg.k_sigma, bound) if p != q]
+        maps = {p: self._receiver_sample_map(p, drecv) for p in dhit}
         if dhit:
-            cand = np.concatenate([np.arange(*drecv.ranges[p]) for p in dhit])
+            cand = np.concatenate([drecv.ranges[p][0] + maps[p][0] for p in dhit])
             part_d = receiver_points(g, drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
-        return shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed[q])
+        res_s, res_d = shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed[q])
+        return res_s, _spread_samples(res_d, dhit, maps, drecv)
+
+    def _receiver_sample_map(self, p: str, drecv: Receivers):
+        """``(sel, nearest)`` of moving receiver ``p`` for the shadows other moving casters put on it
+        (``moving_receiver_samples``: every k-th Gaussian samples, the rest take the nearest
+        sample's, as :func:`self_shadow_samples`), from its Gaussians at the shot's first frame
+        (``anchor_frame`` in a farm chunk: the map of the whole-shot run), once per shot (again
+        when the count changes); ``(every index, None)`` when 0 or the prim is that small."""
+        a, b = drecv.ranges[p]
+        n = self.opts.moving_receiver_samples
+        if n <= 0 or b - a <= n:
+            return np.arange(b - a), None
+        key = (p, n, b - a)
+        got = self._recv_samples.get(key)
+        if got is None:
+            first = self.anchor_frame if self.anchor_frame is not None else self.frames[0]
+            g = self._read(p, first)
+            pos = g.positions if g.count == b - a else drecv.gaussians.positions[a:b]
+            got = self_shadow_samples(pos, n)
+            self._recv_samples[key] = got
+        return got
 
     def _self_points(self, q: str, g, drecv: Receivers, light):
         """:func:`receiver_points` of a relit prim's own Gaussians for its own DGSM (self-shadowing,
