@@ -539,8 +539,10 @@ class ShotProcessor:
         got = self._recv_samples.get(key)
         if got is None:
             first = self.anchor_frame if self.anchor_frame is not None else self.frames[0]
-            g = self._read(p, first)
-            pos = g.positions if g.count == b - a else drecv.gaussians.positions[a:b]
+            pos = drecv.gaussians.positions[a:b]  # (this frame's positions: the first frame's, or read there)
+            if first != self._frame_now:
+                g = self._read(p, first)
+                pos = g.positions if g.count == b - a else pos
             got = self_shadow_samples(pos, n)
             self._recv_samples[key] = got
         return got

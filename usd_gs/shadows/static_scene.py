@@ -158,8 +158,9 @@ class StaticSceneAtlas:
 
     def _reach_for(self, pts: np.ndarray) -> None:
         """Bound the occluders by the receivers: when ``pts`` leave the current reach (a ball), a
-        reach holding them and the old one (grown by half, at least 1 m more) is taken and the
-        occluders that can matter to a lookup inside it are packed again (columns recomputed)."""
+        reach holding them and the old one (grown by half, plus one scene unit, so that walking
+        avatars seldom leave it) is taken and the occluders that can matter to a lookup inside it
+        are packed again (the columns computed so far are dropped: same values, computed again)."""
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         if self.reach is not None:
             c, r = self.reach
