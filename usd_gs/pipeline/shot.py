@@ -652,8 +652,7 @@ class ShotProcessor:
                         0.5 * float(np.hypot(lt.width, lt.height)))
                 for p in scene:
                     a, b = spans[p]
-                    d2 = np.sum((everything.positions[a:b].astype(np.float64) - lt.position) ** 2, axis=1)
-                    keep[a:b] &= d2 > r * r
+                    keep[a:b] &= ~within_capsule(everything.positions[a:b], lt.position, lt.position, r)
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 
