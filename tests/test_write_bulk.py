@@ -5,9 +5,10 @@ import pytest
 from pxr import Vt
 
 from usd_gs.errors import GaussianDataError
+from usd_gs.extent import gaussian_extent
 from usd_gs.gaussians import GaussianSet
 from usd_gs.synthetic import random_gaussians
-from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy
+from usd_gs.usd.bulk import vt_from_numpy
 
 
 def _same_bits(a, b):

@@ -100,8 +100,8 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     :class:`~usd_gs.io.sog_files.SogPrefetch` started before numpy was imported, whose image
     bytes and pixels are used), then its images decoded in a background thread
     (libwebp and numpy release the GIL) into the Vt arrays that will be written, while this
-    thread imports pxr.Sdf and makes the output layer. Returns the :class:`_Background` reader (its ``extent``: an
-    :class:`~usd_gs.usd.bulk.ExtentOfParts` of the decoded units), or None for other
+    thread imports pxr.Sdf and makes the output layer. Returns ``(the _Background reader, the
+    usd_gs.extent.ExtentOfParts its decoding threads fill)``, or ``(None, None)`` for other
     formats (read after the imports).
 
     pxr's imports must not overlap with another thread's calls into pxr (seen: 'cannot import
@@ -112,13 +112,14 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     from usd_gs.io.formats import capture_kind
 
     if capture_kind(path) != "sog":
-        return None
+        return None, None
     import contextlib
     import gc
 
+    from usd_gs.extent import ExtentOfParts
     from usd_gs.io.sog import load_webp_codec, open_sog
     from usd_gs.io.sog_files import decoded_shapes
-    from usd_gs.usd.bulk import ExtentOfParts, VtBackedPool
+    from usd_gs.usd.bulk import VtBackedPool
 
     opened = open_sog(path, lod, prefetch)
     load_webp_codec()
@@ -126,14 +127,13 @@ def _start_sog_decode(path: str, lod: int | None, prefetch=None, made=()):
     extent = ExtentOfParts(3.0)  # each unit's extent in its decoding thread
     gc.disable()
     reader = _Background(opened.decode, None, pool, extent.add)  # decodes the first images while the pool fills
-    reader.extent = extent
     try:
         pool.fill(decoded_shapes(opened.count, opened.sh_degree), made)
     except BaseException:
         with contextlib.suppress(BaseException):
             _join(reader)  # (the collector back on)
         raise
-    return reader
+    return reader, extent
 
 
 def _join(reader):
@@ -171,7 +171,7 @@ def cmd_import(args) -> int:
     sequence = is_pattern(args.input)
     if args.frames and not sequence:
         raise UserError(f"{args.input}: --frames needs a frame pattern such as name_####.sog or name_%04d.ply")
-    reader = None if sequence else _start_sog_decode(args.input, args.lod, prefetch, made)
+    reader, extent = (None, None) if sequence else _start_sog_decode(args.input, args.lod, prefetch, made)
     try:
         path = prim_path(args.prim or default_prim_path(args.input))
         from usd_gs.usd.bulk import vt_backed_empty
@@ -181,7 +181,7 @@ def cmd_import(args) -> int:
         layer = new_layer(up_axis=args.up_axis, meters_per_unit=args.meters_per_unit, default_prim=root.name)
     finally:
         gaussians = None if reader is None else _join(reader)
-    extent = None if reader is None else reader.extent.box(gaussians.count)
+    extent = None if reader is None else extent.box(gaussians.count)
     if sequence:
         what = _import_sequence(args, _stage_on(layer), path)
         save_stage_atomic(layer, args.output)

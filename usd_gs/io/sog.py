@@ -255,7 +255,8 @@ def _decode(plan: _Plan, imgs: dict, out: dict, start: int = 0) -> None:
     spx, c0 = imgs["scales"][0][:n], imgs["sh0"][0][:n]
     _check_indices(label, "scales", plan.scb, spx)
     _check_indices(label, "sh0", plan.ccb, c0)
-    log_table, scale_table, dc_table = _table256(plan.scb), scales_from_log(_table256(plan.scb)), _table256(plan.ccb)
+    log_table, dc_table = _table256(plan.scb), _table256(plan.ccb)
+    scale_table = scales_from_log(log_table)
     rows = lab = None
     if bands:
         hfiles, palette, hcb = plan.hfiles, plan.palette, plan.hcb

@@ -84,9 +84,7 @@ def _region(proc, frames):
     picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
     sets = [proc._read(p, f) for p in movers for f in picks]
     sets = [g for g in sets if g.count]
-    recv = getattr(proc, "_static_recv", None)  # the shot's static receivers: the same prims, concatenated once
-    same = recv is not None and getattr(proc, "_static_recv_paths", None) == paths
-    whole = recv.gaussians if same else GaussianSet.concatenate(scene, label="scene")
+    whole = proc._static_receivers(paths).gaussians  # (shared with the shadows where the prims are the same)
     if not sets:
         return alpha_weighted_centroid(whole), None, whole
     up = se.up_vector(proc.dgsm.up_axis)

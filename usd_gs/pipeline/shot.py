@@ -212,14 +212,13 @@ class ShotProcessor:
         # caches that live for the whole shot
         self._shot_lights: list[ShotLight] | None = None
         self._scene_packs: dict = {}  # per light: the static scene's atlas and emitter mask
-        self._recv_samples: dict = {}  # moving receivers' sample maps (_receiver_sample_map)
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
         self._far_fields: dict = {}  # relit prim -> its probe renders' far-layer cache (usd_gs.relight.far_field)
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._local_sh_cache: dict = {}
-        self._self_samples: dict = {}  # relit prim -> its self-shadow sample map (_self_sample_map)
+        self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
         self._calib_centre = None  # where estimated lights are calibrated (_calibration_centre)
@@ -325,13 +324,21 @@ class ShotProcessor:
         receivers = [r.path for r in self.roles if r.receives_shadows]
         self._static_recv_paths = [p for p in receivers if p in self.static]
         self._dyn_recv_paths = [p for p in receivers if p not in self.static]
-        self._static_recv = Receivers.build([(p, self.static[p]) for p in self._static_recv_paths])
+        self._static_recv = self._static_receivers(self._static_recv_paths)
         self._spheres = prim_spheres(self._static_recv, self.dgsm.k_sigma)
         static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
-        casters = (self._static_recv if static_casters == self._static_recv_paths  # (one concatenation)
-                   else Receivers.build([(p, self.static[p]) for p in static_casters]))
+        casters = self._static_receivers(static_casters)
         self._scene_block = casters.gaussians if static_casters else None
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
+
+    def _static_receivers(self, paths: list) -> Receivers:
+        """The static prims ``paths`` concatenated (``Receivers``), once per shot and list of paths:
+        the static receivers, the static casters and the light estimate's scene share it when they
+        name the same prims."""
+        key = ("static set", tuple(paths))
+        if key not in self._scene_packs:
+            self._scene_packs[key] = Receivers.build([(p, self.static[p]) for p in paths])
+        return self._scene_packs[key]
 
     # ------------------------------------------------------------------ per frame
     def _frame(self, frame: float, author, probe_dir: Path):
@@ -483,7 +490,8 @@ class ShotProcessor:
                         # primvar and the attenuation of unrelit prims keep other prims' shadows only)
                         own = self._self_vis.setdefault((q, id(light)), np.ones(drecv.gaussians.count))
                         a, b = drecv.ranges[q]
-                        sel, nearest = self._self_samples[q]
+                        sel, nearest = self._sample_map(q, self.opts.self_shadow_samples,
+                                                        drecv.gaussians.positions[a:b])
                         vs = np.ones(sel.size)
                         vs[np.searchsorted(a + sel, idx_o)] = val_o
                         own[a:b] *= vs[nearest]  # each Gaussian takes its nearest sample's self-shadow
@@ -527,24 +535,30 @@ class ShotProcessor:
 
     def _receiver_sample_map(self, p: str, drecv: Receivers):
         """``(sel, nearest)`` of moving receiver ``p`` for the shadows other moving casters put on it
-        (``moving_receiver_samples``: every k-th Gaussian samples, the rest take the nearest
-        sample's, as :func:`self_shadow_samples`), from its Gaussians at the shot's first frame
-        (``anchor_frame`` in a farm chunk: the map of the whole-shot run), once per shot (again
-        when the count changes); ``(every index, None)`` when 0 or the prim is that small."""
+        (:meth:`_sample_map` of ``moving_receiver_samples``); ``(every index, None)`` when that is 0
+        or the prim is not larger."""
         a, b = drecv.ranges[p]
         n = self.opts.moving_receiver_samples
         if n <= 0 or b - a <= n:
             return np.arange(b - a), None
-        key = (p, n, b - a)
-        got = self._recv_samples.get(key)
+        return self._sample_map(p, n, drecv.gaussians.positions[a:b])
+
+    def _sample_map(self, p: str, n: int, positions: np.ndarray):
+        """``(sel, nearest)`` of prim ``p`` (``self_shadow_samples``: ``sel`` every k-th of its
+        Gaussians, at most ``n``, ``nearest`` (N,) the position in ``sel`` of each Gaussian's
+        nearest sample), once per shot, from its Gaussians at the shot's first frame (``anchor_frame``
+        in a farm chunk that starts later: the map of the whole-shot run). Gaussian k is the same
+        surface point in every frame, so the map holds for the shot; a changed count gets a new
+        map, from ``positions`` (this frame's) unless the first frame has that count too."""
+        key = (p, int(n), len(positions))
+        got = self._samples.get(key)
         if got is None:
             first = self.anchor_frame if self.anchor_frame is not None else self.frames[0]
-            pos = drecv.gaussians.positions[a:b]  # (this frame's positions: the first frame's, or read there)
             if first != self._frame_now:
                 g = self._read(p, first)
-                pos = g.positions if g.count == b - a else pos
-            got = self_shadow_samples(pos, n)
-            self._recv_samples[key] = got
+                positions = g.positions if g.count == len(positions) else positions
+            got = self_shadow_samples(positions, n)
+            self._samples[key] = got
         return got
 
     def _self_points(self, q: str, g, drecv: Receivers, light):
@@ -555,7 +569,7 @@ class ShotProcessor:
         if light.kind != "directional" and self.opts.self_shadow_lights == "distant":
             return None  # point lights: measured 2x the demo's shadow time (self_shadow_lights='all' for them)
         a, b = drecv.ranges[q]
-        sel, _ = self._self_sample_map(q, g)
+        sel, _ = self._sample_map(q, self.opts.self_shadow_samples, g.positions)
         part = receiver_points(g, drecv, light, self._centre_cfg, roi="all", bias=self.opts.self_shadow_bias / self.mpu,
                                candidates=a + sel)
         if part is None:
@@ -566,22 +580,6 @@ class ShotProcessor:
         off = self.opts.self_shadow_normal * float(np.median(g.scales.max(axis=1)))
         pts = pts + off * np.repeat(np.asarray(nrm, np.float64)[idx - a], len(w), axis=0)
         return idx, pts, w
-
-    def _self_sample_map(self, q: str, g):
-        """``(sel, nearest)`` of a relit prim, once per shot (at the shot's first frame, also in a
-        farm chunk that starts later): ``sel`` the indices of at most ``self_shadow_samples``
-        Gaussians (every k-th) that sample its self-shadowing, ``nearest`` (N,) the position in
-        ``sel`` of each Gaussian's nearest sample. Gaussian k is the same surface point in every
-        frame, so the map holds for the shot (it is rebuilt when the Gaussian count changes)."""
-        got = self._self_samples.get(q)
-        if got is None or got[1].shape[0] != g.count:
-            rest = g
-            if self.anchor_frame is not None and got is None:
-                first = self._read(q, self.anchor_frame)  # a chunk: the map of the whole-shot run
-                rest = first if first.count == g.count else g
-            got = self_shadow_samples(rest.positions, self.opts.self_shadow_samples)
-            self._self_samples[q] = got
-        return got
 
     @property
     def _relit_paths(self) -> set:

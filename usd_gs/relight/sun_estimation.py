@@ -56,6 +56,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from numba_kernels.capsule import within_capsule
 from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.grid_neighbours import nearest
 from numba_kernels.sun_shadow import transmittance_directions
@@ -711,8 +712,6 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
 
     cfg = (config or CaptureConfig()).in_scene_units(meters_per_unit)
     up = up_vector(up_axis)
-    from numba_kernels.capsule import within_capsule
-
     reach = _OFF_RAY_SIGMAS * scene.scales.max(axis=1) if scene.count else np.zeros(0, np.float32)
     pts = np.asarray(region_points, np.float64).reshape(-1, 3)
     for c in candidates:
@@ -739,8 +738,6 @@ def _near_rays(p: np.ndarray, reach: np.ndarray, origin: np.ndarray, targets: np
     """(N,) bool: the points ``p`` (N, 3) within ``reach`` (N,) of the capsule that holds every
     segment from ``origin`` to a point of ``targets`` (M, 3): around the segment to their centre,
     with their spread around it as its radius."""
-    from numba_kernels.capsule import within_capsule
-
     if targets.size == 0:
         return np.zeros(len(p), bool)
     centre = targets.mean(axis=0)

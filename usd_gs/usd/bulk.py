@@ -12,7 +12,6 @@ import ctypes
 
 import numpy as np
 
-from usd_gs.extent import ExtentOfParts, gaussian_extent  # noqa: F401 - (re-exported: the writers use them here)
 from usd_gs.usd.vt_alloc import new_vt_array, vt_class_name
 
 #: below this many bytes ``FromNumpy`` is used as it is (nothing to gain)

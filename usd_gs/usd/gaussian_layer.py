@@ -17,9 +17,10 @@ from pxr import Sdf, Vt
 
 from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, UserError, first_bad_index
+from usd_gs.extent import gaussian_extent
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.atomic import atomic_output
-from usd_gs.usd.bulk import gaussian_extent, vt_from_numpy, vt_writable
+from usd_gs.usd.bulk import vt_from_numpy, vt_writable
 
 GS_TYPE = "ParticleField3DGaussianSplat"
 
