@@ -125,8 +125,9 @@ def main() -> None:
         d = dc_difference(work / f"bikers_{n}.lit.usdc", work / f"bikers_{n}.exact.lit.usdc")
         print(f"{n} avatars, every moving receiver Gaussian looking up (moving_receiver_samples 0): "
               f"{sum(steady) / len(steady):.3f} s/frame ({sum(steady) / len(steady) / base:.2f}x N=1); relit DC "
-              f"colour of the default against it: max {255 * d.max():.2f}/255, mean {255 * d.mean():.4f}/255, "
-              f"99.9th percentile {255 * np.percentile(d, 99.9):.3f}/255")
+              f"colour of the default against it ({d.size:,} values): max {255 * d.max():.2f}/255, mean "
+              f"{255 * d.mean():.4f}/255, 99.9th percentile {255 * np.percentile(d, 99.9):.3f}/255, "
+              f"{int((d > 1 / 255).sum())} above 1/255, {int((d > 4 / 255).sum())} above 4/255")
 
 
 if __name__ == "__main__":
