@@ -38,7 +38,9 @@ same definition by brute force in float64):
 
 Pipeline (all numba, prange over independent work):
 1. ``_cull`` (prange over Gaussians): a conservative per-camera visibility bit mask from a
-   cheap bound on the footprint (no quaternion work), so off-screen splats cost ~10 flops.
+   cheap bound on the footprint (no quaternion work): off-screen splats, and sub-pixel splats
+   whose bounding square holds no pixel centre (most of a far scene's in a small probe face),
+   cost ~30 flops instead of a full projection.
 2. prefix sum of the visible counts, then ``_write_entries`` (prange over Gaussians): the
    full EWA projection and SH colour of each visible (Gaussian, camera) pair, written to a
    compacted 64-byte float32 record (colour evaluated once per camera centre, so the six
@@ -249,9 +251,6 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
             iz = 1.0 / z
             u = c[12] * x * iz + c[14]
             v = c[13] * y * iz + c[15]
-            if u >= 0.0 and u <= width and v >= 0.0 and v <= height:
-                bits |= np.int64(1) << k
-                continue
             if qcut < 0.0:
                 qcut = _support_q(op)
                 smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
