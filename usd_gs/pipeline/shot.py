@@ -211,7 +211,9 @@ class ShotProcessor:
         self.mpu = 1.0
         # caches that live for the whole shot
         self._shot_lights: list[ShotLight] | None = None
-        self._scene_packs: dict = {}  # per light: the static scene's atlas and emitter mask
+        # shot-long static-scene caches: per light its atlas, emitter masks and calibration; the
+        # static prim sets (_static_receivers); the block's chunk extents
+        self._scene_packs: dict = {}
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
