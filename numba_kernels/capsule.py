@@ -4,7 +4,10 @@ reach, e.g. a few of their sigmas) against the rays a shadow or visibility test 
 
 Float64 arithmetic on float32 or float64 positions: the closest point of the segment is
 ``a + t u`` with ``u`` the unit direction and ``t = clip((p - a) . u, 0, |b - a|)``; a point is
-inside when ``|p - a - t u|^2 <= (radius + extra)^2``. Reference: ``numba_kernels.reference.capsule``.
+inside when ``|p - a - t u|^2 <= (radius + extra)^2``. :func:`within_capsule_scaled` takes each
+point's extra reach as ``factor`` times its largest scale, computed in the kernel in float32 (the
+value of ``factor * scales.max(axis=1)`` on float32 scales) so that no per-point array is made.
+Reference: ``numba_kernels.reference.capsule``.
 """
 
 from __future__ import annotations
@@ -18,33 +21,63 @@ from .jit_options import threaded
 from .thread_chunks import run_chunks
 
 
+@njit(inline="always")
+def _distance2(p, m, a, u, length):
+    """Squared distance (float64) of point ``p[m]`` to the segment ``a + t u``, t in [0, length]."""
+    vx = np.float64(p[m, 0]) - a[0]
+    vy = np.float64(p[m, 1]) - a[1]
+    vz = np.float64(p[m, 2]) - a[2]
+    if length > 0.0:
+        t = min(max(vx * u[0] + vy * u[1] + vz * u[2], 0.0), length)
+        vx -= t * u[0]
+        vy -= t * u[1]
+        vz -= t * u[2]
+    return vx * vx + vy * vy + vz * vz
+
+
 @njit(cache=True, **threaded(), fastmath=False)
 def _within(i0, i1, p, extra, a, u, length, radius, out):
     for m in range(i0, i1):
-        vx = np.float64(p[m, 0]) - a[0]
-        vy = np.float64(p[m, 1]) - a[1]
-        vz = np.float64(p[m, 2]) - a[2]
-        if length > 0.0:
-            t = min(max(vx * u[0] + vy * u[1] + vz * u[2], 0.0), length)
-            vx -= t * u[0]
-            vy -= t * u[1]
-            vz -= t * u[2]
         r = radius + extra[m]
-        out[m] = vx * vx + vy * vy + vz * vz <= r * r
+        out[m] = _distance2(p, m, a, u, length) <= r * r
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _within_scaled(i0, i1, p, scales, factor, a, u, length, radius, out):
+    for m in range(i0, i1):
+        r = radius + np.float64(factor * max(scales[m, 0], scales[m, 1], scales[m, 2]))
+        out[m] = _distance2(p, m, a, u, length) <= r * r
+
+
+def _segment(positions, a, b):
+    """(contiguous float32/float64 positions (N, 3), a (3,) float64, unit axis, length)."""
+    p = np.asarray(positions)
+    if p.dtype not in (np.float32, np.float64):
+        p = p.astype(np.float64)
+    p = np.ascontiguousarray(p).reshape(-1, 3)
+    a64 = np.asarray(a, np.float64).reshape(3)
+    axis = np.asarray(b, np.float64).reshape(3) - a64
+    length = float(math.sqrt(float(axis @ axis)))
+    u = axis / length if length > 0.0 else np.zeros(3)
+    return p, a64, u, length
+
+
+def within_capsule_scaled(positions, a, b, radius: float, scales, factor: float) -> np.ndarray:
+    """``within_capsule(positions, a, b, radius, factor * scales.max(axis=1))`` for float32
+    ``scales`` (N, 3) (module docstring), without the (N,) array of reaches."""
+    p, a64, u, length = _segment(positions, a, b)
+    n = p.shape[0]
+    s = np.ascontiguousarray(scales, np.float32).reshape(n, 3)
+    out = np.zeros(n, np.bool_)
+    run_chunks(_within_scaled, n, p, s, np.float32(factor), a64, u, length, float(radius), out, min_chunk=65536)
+    return out
 
 
 def within_capsule(positions, a, b, radius: float, extra=None) -> np.ndarray:
     """(N,) bool: ``positions`` (N, 3) float32 or float64 within ``radius`` + ``extra`` (N,) (None:
     0) of the segment ``a``-``b`` (3,) (module docstring)."""
-    p = np.asarray(positions)
-    if p.dtype not in (np.float32, np.float64):
-        p = p.astype(np.float64)
-    p = np.ascontiguousarray(p).reshape(-1, 3)
+    p, a64, u, length = _segment(positions, a, b)
     n = p.shape[0]
-    a64 = np.asarray(a, np.float64).reshape(3)
-    axis = np.asarray(b, np.float64).reshape(3) - a64
-    length = float(math.sqrt(float(axis @ axis)))
-    u = axis / length if length > 0.0 else np.zeros(3)
     ex = np.zeros(n) if extra is None else np.ascontiguousarray(extra, np.float64).reshape(n)
     out = np.zeros(n, np.bool_)
     run_chunks(_within, n, p, ex, a64, u, length, float(radius), out, min_chunk=65536)

@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from numba_kernels.capsule import within_capsule
+from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from numba_kernels.reference.capsule import within_capsule as reference
+from numba_kernels.reference.capsule import within_capsule_scaled as reference_scaled
 
 
 def test_kernel_equals_the_reference_away_from_the_boundary():
@@ -35,3 +36,30 @@ def test_hand_cases_segment_ends_and_a_ball():
     ball = within_capsule(np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 1.0]]), a, a, 1.0)
     assert ball.tolist() == [True, False]
     assert within_capsule(np.zeros((0, 3), np.float32), a, b, 1.0).shape == (0,)
+
+
+def test_scaled_reach_is_the_largest_scale_times_the_factor():
+    """The reach computed in the kernel (float32 factor x largest scale) gives the same answer as the
+    (N,) reach array given to within_capsule, bit for bit, and the reference away from the boundary."""
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-4, 4, (150_000, 3)).astype(np.float32)
+    scales = rng.lognormal(-3.0, 1.0, (len(p), 3)).astype(np.float32)
+    a, b = np.array([0.5, -2.0, 1.0]), np.array([-1.5, 2.5, 0.25])
+    for factor in (8.0, 4.0, 3.3):
+        got = within_capsule_scaled(p, a, b, 0.9, scales, factor)
+        assert np.array_equal(got, within_capsule(p, a, b, 0.9, np.float32(factor) * scales.max(axis=1)))
+        ref = reference_scaled(p, a, b, 0.9, scales, factor)
+        v = p.astype(np.float64) - a
+        u = (b - a) / np.linalg.norm(b - a)
+        t = np.clip(v @ u, 0, np.linalg.norm(b - a))
+        d = np.linalg.norm(v - t[:, None] * u, axis=1)
+        clear = np.abs(d - (0.9 + factor * scales.max(axis=1).astype(np.float64))) > 1e-6
+        assert np.array_equal(got[clear], ref[clear]) and 0.02 < got.mean() < 0.6
+    # a point 1 m beside the segment is inside exactly when factor x its largest scale reaches it
+    one = np.array([[0.0, 1.0, 0.0]], np.float32)
+    s = np.array([[0.01, 0.2, 0.05]], np.float32)
+    a, b = np.array([-1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    assert within_capsule_scaled(one, a, b, 0.5, s, 3.0).tolist() == [True]   # 0.5 + 0.6 >= 1
+    assert within_capsule_scaled(one, a, b, 0.5, s, 2.0).tolist() == [False]  # 0.5 + 0.4 < 1
+    assert within_capsule_scaled(np.zeros((0, 3), np.float32), a, b, 1.0, np.zeros((0, 3), np.float32),
+                                 8.0).shape == (0,)

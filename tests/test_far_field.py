@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from usd_gs.gaussians import GaussianSet
-from usd_gs.relight.far_field import FarField, composite_faces
+from usd_gs.relight.far_field import FarField, FarLayers, composite_faces
 from usd_gs.relight.probe import fit_probe, render_probe_faces
 from usd_gs.synthetic import random_gaussians
 
@@ -83,6 +83,48 @@ def test_a_changed_mask_renders_a_new_far_layer():
     got = ff.render(everything, np.zeros(3), SIZE, mask)
     ref = render_probe_faces(everything, np.zeros(3), SIZE, mask)
     assert ff.renders == 2 and np.abs(got[0] - ref[0]).max() < 2e-5
+
+
+def test_grid_level_follows_the_clearance_around_the_anchor():
+    """Level L (pitch x 2^L) only where no static Gaussian lies between radius and radius x 2^L:
+    the far shell at 30-40 m allows level 1 at radius 10 (20 m clear) and level 2 at radius 5,
+    a shell at 12-14 m keeps level 0 at radius 10."""
+    everything, s = _scene()
+    mask = np.ones(everything.count, bool)
+    for radius, level in ((10.0, 1), (5.0, 2), (20.0, 0)):
+        ff = FarField(radius, 0.05, s)
+        ff.render(everything, np.zeros(3), SIZE, mask)
+        assert ff.level == level and ff.renders == 1
+    close = GaussianSet.concatenate([_shell(3000, 1.0, 3.0, 1), _shell(3000, 12.0, 14.0, 4), _shell(400, 0.5, 0.8, 3)])
+    ff = FarField(10.0, 0.05, 6000)
+    ff.render(close, np.zeros(3), SIZE, np.ones(close.count, bool))
+    assert ff.level == 0 and ff.renders == 1
+
+
+def test_coarse_level_worst_corner_of_its_cell_matches_the_full_render():
+    """At level 2 (radius 5: 1 m cells), a probe at a cell corner (0.87 m from the anchor) sees the
+    far shell (>= 30 m) off by under the level-0 bound: the probe within 1 % of the full render's."""
+    everything, s = _scene()
+    mask = np.ones(everything.count, bool)
+    ff = FarField(5.0, 0.05, s)
+    centre = np.array([0.49, 0.49, -0.49])
+    got = ff.render(everything, centre, SIZE, mask)
+    assert ff.level == 2 and np.array_equal(ff.anchor(centre, 2), np.zeros(3))
+    ref = render_probe_faces(everything, centre, SIZE, mask)
+    a, b = (fit_probe(x[0], degree=3, alpha=x[1]).rh() for x in (got, ref))
+    assert np.linalg.norm(a - b) / np.linalg.norm(b) < 0.01
+
+
+def test_prims_in_one_cell_share_a_far_layer():
+    everything, s = _scene()
+    mask = np.ones(everything.count, bool)
+    shared = FarLayers(4)
+    first, second, alone = FarField(10.0, 0.05, s, shared), FarField(10.0, 0.05, s, shared), FarField(10.0, 0.05, s)
+    first.render(everything, np.array([0.1, 0.0, 0.0]), SIZE, mask)
+    got = second.render(everything, np.array([-0.2, 0.1, 0.0]), SIZE, mask)
+    ref = alone.render(everything, np.array([-0.2, 0.1, 0.0]), SIZE, mask)
+    assert (first.renders, second.renders, alone.renders) == (1, 0, 1)
+    assert all(np.array_equal(x, y) for x, y in zip(got, ref, strict=True))
 
 
 @pytest.mark.parametrize("radius, tolerance", [(0.0, 0.05), (10.0, 0.0), (10.0, 0.6)])

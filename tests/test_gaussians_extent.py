@@ -129,4 +129,10 @@ def test_row_blocked_matmul_equals_one_matmul():
     for n in (1, 5, _MATMUL_ROWS, _MATMUL_ROWS + 1, 3 * _MATMUL_ROWS + 7, 200_000):
         a = (rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 1e4])).astype(np.float32).astype(np.float64)
         m = rng.normal(size=(4, 4))
-        assert _matmul_rows(a, m[:3, :3]).tobytes() == (a @ m[:3, :3]).tobytes()
+        got, want = _matmul_rows(a, m[:3, :3]), a @ m[:3, :3]
+        # each row is the same 3-term dot product, but OpenBLAS may pick another kernel (FMA or not)
+        # for a block's tail rows: equal within the rounding bound of a 3-term dot product
+        bound = 3 * np.finfo(np.float64).eps * (np.abs(a) @ np.abs(m[:3, :3]))
+        assert got.shape == want.shape and np.all(np.abs(got - want) <= bound)
+        if n <= _MATMUL_ROWS:  # one block: the same call
+            assert got.tobytes() == want.tobytes()

@@ -17,3 +17,8 @@ def within_capsule(positions, a, b, radius: float, extra=None) -> np.ndarray:
         v = v - t[:, None] * u
     r = radius + (np.zeros(len(p)) if extra is None else np.asarray(extra, np.float64))
     return np.sum(v * v, axis=1) <= r * r
+
+
+def within_capsule_scaled(positions, a, b, radius: float, scales, factor: float) -> np.ndarray:
+    reach = np.float32(factor) * np.asarray(scales, np.float32).max(axis=1)
+    return within_capsule(positions, a, b, radius, reach)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
+from numba_kernels.capsule import within_capsule
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.pipeline.options import ProcessOptions
@@ -202,7 +203,8 @@ def warm_up(groups=GROUPS) -> None:
         recv = Receivers.build([("/scene", scene)])
         drecv = Receivers.build([("/avatar", avatar)])
         part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
-        StaticSceneAtlas(scene, light.position, centre_cfg).transmittance(part[1])
+        keep = ~within_capsule(scene.positions, light.position, light.position, opts.emitter_radius)  # _emitter_keep
+        StaticSceneAtlas(scene, light.position, centre_cfg, keep=keep).transmittance(part[1])
         parts = [receiver_points(avatar, recv, light, opts.dgsm, roi=opts.roi),
                  receiver_points(avatar, drecv, light, opts.dgsm, exclude="/avatar", roi=opts.roi)]
         (idx, val), _ = shared_transmittance(avatar, parts, light, opts.dgsm, prepare_occluders(avatar, opts.dgsm))

@@ -46,7 +46,7 @@ from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.appearance import read_appearance
 from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
-from usd_gs.relight.far_field import FarField
+from usd_gs.relight.far_field import KEEP, FarField, FarLayers
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.sun_estimation import up_vector
@@ -217,7 +217,7 @@ class ShotProcessor:
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
-        self._far_fields: dict = {}  # relit prim -> its probe renders' far-layer cache (usd_gs.relight.far_field)
+        self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._local_sh_cache: dict = {}
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
@@ -952,7 +952,10 @@ class ShotProcessor:
             return None
         far = self._far_fields.get(path)
         if far is None or far.static_count != static_count:
-            far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count)
+            layers = self._far_fields.get(("layers", static_count))
+            if layers is None:  # one store per static part, shared by the relit prims
+                layers = self._far_fields[("layers", static_count)] = FarLayers(KEEP * len(self._relit_paths))
+            far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count, layers)
         return far
 
     def _write_probe(self, path, frame, centre, probe, author, probe_dir: Path) -> None:

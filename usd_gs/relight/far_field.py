@@ -6,9 +6,14 @@ directions move by ``offset / distance``), yet a render per frame draws every on
 :class:`FarField` (one per relit prim and shot) splits the render in two:
 
 - **far layer**: the static Gaussians (the first ``static_count`` of the shot buffer) whose
-  centres lie at least ``radius`` from an anchor ``a`` (the probe centre snapped to a grid of
-  pitch ``tolerance * radius``), rendered from ``a`` and kept while the probe centre stays in that
-  grid cell (a new cell renders a new layer; the last :data:`KEEP` layers are kept);
+  centres lie farther than ``radius`` from an anchor ``a`` (the probe centre snapped to a grid of
+  pitch ``tolerance * radius * 2^L``), rendered from ``a`` and kept while the probe centre stays
+  in that grid cell (a new cell renders a new layer; the last :data:`KEEP` layers per prim are
+  kept). The level ``L`` is the coarsest of :data:`LEVELS` whose anchor has no static Gaussian
+  between ``radius`` and ``radius * 2^L``: the far layer's nearest Gaussian is then ``2^L`` times
+  farther too, so the direction bound below holds at every level, and a scene whose far part is
+  far away gets larger cells (fewer layers rendered as the prims walk). Layers are shared by the
+  relit prims of a shot (:class:`FarLayers`): the static part and its mask are the same for all;
 - **near render**: everything else the probe draws (the dynamic prims, the static Gaussians
   within ``radius`` of ``a``), from the probe centre itself, every frame;
 - the two composited, the near layer over the far one (premultiplied colour, alpha, expected
@@ -17,22 +22,28 @@ directions move by ``offset / distance``), yet a render per frame draws every on
 
 Approximations (measured against the full render in tests/test_far_field.py and
 docs/benchmarks.md): the far layer is seen from the anchor, at most ``sqrt(3)/2 * tolerance *
-radius`` from the centre, so a far Gaussian's direction is off by at most about
-``0.87 * tolerance`` radians (2.5 deg at the default 0.05: below a 32-texel face's 2.8 deg texel);
-Gaussians within ``tolerance * radius`` of the boundary sphere may composite in the wrong order;
-with supersampling the layers are composited after the box filter. The anchor depends only on the
-frame's probe centre, so a farm chunk renders what the whole-shot run renders. Where no static
-Gaussian lies beyond ``radius`` the result is the full render's, bit for bit.
+radius * 2^L`` from the centre, and its Gaussians are at least ``radius * 2^L`` from it, so a far
+Gaussian's direction is off by at most about ``0.87 * tolerance`` radians (2.5 deg at the default
+0.05: below a 32-texel face's 2.8 deg texel); Gaussians within ``tolerance * radius`` of the
+boundary sphere may composite in the wrong order; with supersampling the layers are composited
+after the box filter. The anchor depends only on the frame's probe centre and the static scene
+(not on what was rendered before), so a farm chunk renders what the whole-shot run renders.
+Where no static Gaussian lies beyond ``radius`` the result is the full render's, bit for bit.
 """
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
+from numba_kernels.capsule import within_capsule
 from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_faces
 
-#: far layers kept per prim (a prim that moves back and forth between two cells reuses both)
+#: far layers kept per relit prim (a prim that moves back and forth between two cells reuses both)
 KEEP = 2
+#: grid levels tried for a far layer (module docstring): pitch and clearance double per level
+LEVELS = 3
 
 
 def composite_faces(near: tuple, far: tuple) -> tuple:
@@ -49,24 +60,74 @@ def composite_faces(near: tuple, far: tuple) -> tuple:
     return rgb.astype(np.float32), alpha.astype(np.float32), depth.astype(np.float32)
 
 
+class FarLayers:
+    """The far layers of one shot's static part, shared by its relit prims' :class:`FarField`
+    caches (thread-safe: the prims' probe tasks run side by side): layers by key, the last
+    ``keep`` used, and each anchor's clearance test (:meth:`clear`)."""
+
+    def __init__(self, keep: int = KEEP):
+        self.keep = max(1, int(keep))
+        self._lock = threading.Lock()
+        self._layers: list = []  # [(key, (near indices or None, faces or None))], most recent first
+        self._clear: dict = {}
+
+    def get(self, key):
+        with self._lock:
+            for i, (k, value) in enumerate(self._layers):
+                if k == key:
+                    self._layers.insert(0, self._layers.pop(i))
+                    return value
+        return None
+
+    def put(self, key, value) -> None:
+        with self._lock:
+            self._layers = [(key, value), *[kv for kv in self._layers if kv[0] != key]][:self.keep]
+
+    def clear(self, static_positions: np.ndarray, anchor: np.ndarray, inner: float, outer: float) -> bool:
+        """True when no static Gaussian centre lies farther than ``inner`` and within ``outer`` of
+        ``anchor`` (cached per anchor and radii)."""
+        key = (tuple(anchor), float(inner), float(outer), len(static_positions))
+        with self._lock:
+            hit = self._clear.get(key)
+        if hit is None:
+            hit = bool(np.count_nonzero(within_capsule(static_positions, anchor, anchor, outer))
+                       == np.count_nonzero(within_capsule(static_positions, anchor, anchor, inner)))
+            with self._lock:
+                self._clear[key] = hit
+        return hit
+
+
 class FarField:
     """The far-layer cache of one relit prim (module docstring). ``radius`` and ``tolerance`` in the
     stage's units and as a fraction of ``radius``; ``static_count``: how many leading Gaussians of
-    the buffers given to :meth:`render` are static (the same, at the same index, every frame).
-    Not thread-safe: one prim's probe task uses it at a time."""
+    the buffers given to :meth:`render` are static (the same, at the same index, every frame);
+    ``shared``: the shot's :class:`FarLayers` for this static part (None: this prim's own).
+    One prim's probe task uses it at a time."""
 
-    def __init__(self, radius: float, tolerance: float, static_count: int):
+    def __init__(self, radius: float, tolerance: float, static_count: int, shared: FarLayers | None = None):
         if not (radius > 0.0 and 0.0 < tolerance <= 0.5):
             raise ValueError(f"far field: radius {radius} must be > 0 and tolerance {tolerance} in (0, 0.5]")
         self.radius = float(radius)
         self.pitch = float(tolerance) * self.radius
         self.static_count = int(static_count)
-        self._layers: list = []  # [(key, far mask over the static part or None when none is far, faces)]
-        self.renders = 0  # far layers rendered (diagnostics, tests)
+        self._store = shared if shared is not None else FarLayers(KEEP)
+        self.renders = 0  # far layers this prim rendered (diagnostics, tests)
+        self.level = 0  # the grid level of the last render
 
-    def anchor(self, centre) -> np.ndarray:
-        """The grid point (float64 (3,)) the far layer of a probe at ``centre`` is rendered from."""
-        return np.round(np.asarray(centre, np.float64) / self.pitch) * self.pitch
+    def anchor(self, centre, level: int = 0) -> np.ndarray:
+        """The grid point (float64 (3,)) the far layer of a probe at ``centre`` is rendered from,
+        on the grid of ``level`` (pitch ``tolerance * radius * 2^level``)."""
+        pitch = self.pitch * 2.0 ** int(level)
+        return np.round(np.asarray(centre, np.float64) / pitch) * pitch
+
+    def level_anchor(self, static_positions: np.ndarray, centre) -> tuple[int, np.ndarray]:
+        """``(level, anchor)`` of the far layer for a probe at ``centre``: the coarsest level whose
+        anchor has no static Gaussian between ``radius`` and ``radius * 2^level`` (module docstring)."""
+        for level in range(LEVELS - 1, 0, -1):
+            a = self.anchor(centre, level)
+            if self._store.clear(static_positions, a, self.radius, self.radius * 2.0 ** level):
+                return level, a
+        return 0, self.anchor(centre, 0)
 
     def render(self, everything, centre, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
                supersample: int = PROBE_SUPERSAMPLE) -> tuple:
@@ -74,22 +135,22 @@ class FarField:
         static Gaussians far from the anchor taken from the cached far layer."""
         mask = np.asarray(mask, bool)
         s = self.static_count
-        a = self.anchor(centre)
-        key = (tuple(a), int(size), float(dilation), int(supersample), everything.count,
-               hash(mask[:s].tobytes()))
-        hit = next((layer for layer in self._layers if layer[0] == key), None)
+        static = everything.positions[:s]
+        self.level, a = self.level_anchor(static, centre)
+        # (a layer depends on its anchor, not on the level that chose it)
+        key = (tuple(a), int(size), float(dilation), int(supersample), everything.count, s, hash(mask[:s].tobytes()))
+        hit = self._store.get(key)
         if hit is None:
-            d2 = np.sum((everything.positions[:s].astype(np.float64) - a) ** 2, axis=1)
-            beyond = d2 >= self.radius * self.radius
+            beyond = ~within_capsule(static, a, a, self.radius)
             far = np.flatnonzero(beyond & mask[:s])
             faces = near = None
             if far.size:
                 faces = render_probe_faces(everything, a, size, None, dilation, supersample, order=far)
                 near = np.flatnonzero(~beyond & mask[:s])  # the static Gaussians the near pass draws
                 self.renders += 1
-            hit = (key, near, faces)
-            self._layers = [hit, *self._layers][:KEEP]
-        _, near, faces = hit
+            hit = (near, faces)
+            self._store.put(key, hit)
+        near, faces = hit
         if faces is None:  # nothing far: the plain render
             return render_probe_faces(everything, centre, size, mask, dilation, supersample)
         order = np.concatenate([near, s + np.flatnonzero(mask[s:])])  # (increasing: static first)

@@ -56,7 +56,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from numba_kernels.capsule import within_capsule
+from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.grid_neighbours import nearest
 from numba_kernels.sun_shadow import transmittance_directions
@@ -271,25 +271,41 @@ def _flat_among(g: GaussianSet, sel: np.ndarray, up: np.ndarray, flat_cos: float
     return out
 
 
+def _within_horizontal(positions: np.ndarray, up: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Increasing indices of the ``positions`` (N, 3) within a little more than ``radius`` of the
+    vertical line through ``centre``, a superset of those within ``radius``: one capsule pass along
+    an axis-aligned ``up`` (its segment's ends 1e150 away, so the along-axis part cancels exactly
+    and the distance is the horizontal one); every index for another ``up``."""
+    if np.count_nonzero(up) != 1:
+        return np.arange(len(positions))
+    half = 1e150 * np.asarray(up, np.float64)
+    return np.flatnonzero(within_capsule(positions, centre - half, centre + half, radius * (1.0 + 1e-6) + 1e-9))
+
+
 def ground_height(g: GaussianSet, up: np.ndarray, centre, radius: float, hint: float | None, search: float,
                   flat_cos: float, bin_size: float) -> float | None:
     """Height (along ``up``) of the densest flat horizontal layer of ``g`` within ``radius`` of
     ``centre`` (horizontal distance), searched within ``search`` of ``hint`` when given; None
     when no flat Gaussian is there. Weighted by opacity x footprint area."""
-    p = g.positions.astype(np.float64)
-    h = p @ up
+    if not g.count:
+        return None
     c = np.asarray(centre, np.float64)
+    cand = _within_horizontal(g.positions, up, c, radius)  # (a superset of the test below, in one pass)
+    p = g.positions[cand].astype(np.float64)
+    h = p @ up
     horiz = (p - c) - np.outer(h - c @ up, up)
     near = np.einsum("ij,ij->i", horiz, horiz) <= radius * radius
-    sel = near & (g.opacities > 0.2)
+    sel_c = near & (g.opacities[cand] > 0.2)
     if hint is not None:
-        sel &= np.abs(h - hint) <= search
+        sel_c &= np.abs(h - hint) <= search
+    sel = np.zeros(g.count, bool)
+    sel[cand[sel_c]] = True
     sel = _flat_among(g, sel, up, flat_cos)
     if sel.sum() < 10:
         return None
     s = np.sort(g.scales[sel], axis=1)
     w = g.opacities[sel] * s[:, 1] * s[:, 2]
-    hs = h[sel]
+    hs = h[sel[cand]]
     lo, hi = hs.min(), hs.max()
     nb = max(int(np.ceil((hi - lo) / bin_size)), 1)
     hist, edges = np.histogram(hs, bins=nb, range=(lo, lo + nb * bin_size), weights=w)
@@ -712,7 +728,6 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
 
     cfg = (config or CaptureConfig()).in_scene_units(meters_per_unit)
     up = up_vector(up_axis)
-    reach = _OFF_RAY_SIGMAS * scene.scales.max(axis=1) if scene.count else np.zeros(0, np.float32)
     pts = np.asarray(region_points, np.float64).reshape(-1, 3)
     for c in candidates:
         if floor_height is not None and float(c.position @ up) < floor_height - cfg.floor_margin:
@@ -720,7 +735,7 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
                           "(a reflection in the floor, not a light)")
             continue
         keep = np.flatnonzero(~within_capsule(scene.positions, c.position, c.position, cfg.emitter_radius)
-                              & _near_rays(scene.positions, reach, c.position, pts))
+                              & _near_rays(scene, c.position, pts))
         vis = float(np.max(exact_transmittance(scene.subset(keep), pts, c.position))) if pts.size else 1.0
         c.visibility = vis
         if vis < cfg.min_visibility:
@@ -734,15 +749,15 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
 _OFF_RAY_SIGMAS = 8.0
 
 
-def _near_rays(p: np.ndarray, reach: np.ndarray, origin: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """(N,) bool: the points ``p`` (N, 3) within ``reach`` (N,) of the capsule that holds every
-    segment from ``origin`` to a point of ``targets`` (M, 3): around the segment to their centre,
-    with their spread around it as its radius."""
+def _near_rays(scene: GaussianSet, origin: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(N,) bool: the Gaussians of ``scene`` within :data:`_OFF_RAY_SIGMAS` of their largest sigmas
+    of the capsule that holds every segment from ``origin`` to a point of ``targets`` (M, 3):
+    around the segment to their centre, with their spread around it as its radius."""
     if targets.size == 0:
-        return np.zeros(len(p), bool)
+        return np.zeros(scene.count, bool)
     centre = targets.mean(axis=0)
     spread = float(np.sqrt(np.max(np.sum((targets - centre) ** 2, axis=1))))
-    return within_capsule(p, origin, centre, spread, reach)
+    return within_capsule_scaled(scene.positions, origin, centre, spread, scene.scales, _OFF_RAY_SIGMAS)
 
 
 def region_points(centre, up_axis: str, offset: float) -> np.ndarray:

@@ -129,7 +129,6 @@ class StaticSceneAtlas:
         corners = np.array([[ext[i, 0], ext[j, 1], ext[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
         self.t_max = dgsm_build.t_max_for(dgsm_build.far_distance(self.light, corners), self.K)
         self.reach: tuple[np.ndarray, float] | None = None  # (centre, radius) of the receivers served
-        self._r_occ = None  # (N,) the occluders' k-sigma radii, for the reach test
         self.kept = 0
         self.builds = 0  # packings of the occluders (a reach that grows packs again)
         self.occ = self.dir_dep = self.tiles = None
@@ -180,14 +179,13 @@ class StaticSceneAtlas:
         point of the reach, so an occluder outside it adds nothing to a voxel a lookup there reads.
         The margin covers the voxels those lookups blend: one radial bin beyond the point and the
         neighbouring pixels' rays (two pixel angles of the octahedral map, at most 4/W radians)."""
-        from numba_kernels.capsule import within_capsule
+        from numba_kernels.capsule import within_capsule_scaled
 
-        if self._r_occ is None:
-            self._r_occ = self.cfg.k_sigma * self._all.scales.max(axis=1)
         length = float(np.linalg.norm(centre - self.light))
         far = length + radius + self.t_max / self.K
         margin = self.t_max / self.K + 2.0 * (4.0 / self.width) * far
-        return within_capsule(self._all.positions, self.light, centre, radius + margin, self._r_occ)
+        return within_capsule_scaled(self._all.positions, self.light, centre, radius + margin, self._all.scales,
+                                     self.cfg.k_sigma)
 
     @property
     def computed_pixels(self) -> int:
