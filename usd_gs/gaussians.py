@@ -376,10 +376,10 @@ _MATMUL_ROWS = 16384
 
 def _matmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a @ b`` for (N, 3) ``a`` and (3, 3) ``b`` (float64), in row blocks of :data:`_MATMUL_ROWS`:
-    the same values within a 3-term dot product's rounding (each row's products are the same; OpenBLAS
-    may round a block's tail rows with another kernel, e.g. without FMA: 2 values of a 16,385-row product by one ulp
-    on a Zen 3 CPU), deterministic for a given N, without the BLAS threads that, on a busy machine,
-    wait longer for each other than the product takes (measured 8x on 152k rows)."""
+    the same values within a 3-term dot product's rounding (each row's products are the same, but
+    OpenBLAS may round a block's tail rows with another kernel: one ulp on a Zen 3 CPU), deterministic
+    for a given N, without the BLAS threads that, on a busy machine, wait longer for each other than
+    the product takes (measured 8x on 152k rows)."""
     n = a.shape[0]
     if n <= _MATMUL_ROWS:
         return a @ b

@@ -86,7 +86,7 @@ class FarLayers:
     def clear(self, static_positions: np.ndarray, anchor: np.ndarray, inner: float, outer: float) -> bool:
         """True when no static Gaussian centre lies farther than ``inner`` and within ``outer`` of
         ``anchor`` (cached per anchor and radii)."""
-        key = (tuple(anchor), float(inner), float(outer), len(static_positions))
+        key = (tuple(anchor), float(inner), float(outer))
         with self._lock:
             hit = self._clear.get(key)
         if hit is None:
@@ -138,7 +138,7 @@ class FarField:
         static = everything.positions[:s]
         self.level, a = self.level_anchor(static, centre)
         # (a layer depends on its anchor, not on the level that chose it)
-        key = (tuple(a), int(size), float(dilation), int(supersample), everything.count, s, hash(mask[:s].tobytes()))
+        key = (tuple(a), int(size), float(dilation), int(supersample), everything.count, hash(mask[:s].tobytes()))
         hit = self._store.get(key)
         if hit is None:
             beyond = ~within_capsule(static, a, a, self.radius)
