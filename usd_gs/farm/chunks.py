@@ -14,6 +14,10 @@ leaves finished chunks usable and unfinished ones without a sidecar (they are re
 ``options_hash`` covers every processing option except the frame selection, plus the
 shot-level lights; ``input_hash`` covers the bytes of every layer of the input stage. A
 chunk whose frames, hashes or layer bytes differ from what the run expects is stale.
+
+The folder also holds the run's shot cache, ``<dir>/shot_cache_<key>.npz``
+(:func:`shot_cache_path`, ``usd_gs.pipeline.shot_cache``): what every chunk computes from the
+shot's first frame, written by the first chunk that computes it and read by the others.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from usd_gs.usd.stage import open_stage
 
 FORMAT = "usdgs-chunk/1"
 PREFIX = "chunk_"
+SHOT_CACHE_PREFIX = "shot_cache_"  # the run's shared anchor-frame values (usd_gs.pipeline.shot_cache)
 
 
 def _frame_label(f: float) -> str:
@@ -140,6 +145,17 @@ def options_hash(options, lights, anchor: float | None = None) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def shot_cache_key(opts_hash: str, in_hash: str) -> str:
+    """The key of a run's shot cache: SHA-256 of its options hash and input hash."""
+    return hashlib.sha256(f"{opts_hash}:{in_hash}".encode()).hexdigest()
+
+
+def shot_cache_path(folder: Path, opts_hash: str, in_hash: str) -> Path:
+    """``<folder>/shot_cache_<first 16 hex digits of the key>.npz``: the file the chunks of one run
+    share (``usd_gs.pipeline.shot_cache``)."""
+    return Path(folder) / f"{SHOT_CACHE_PREFIX}{shot_cache_key(opts_hash, in_hash)[:16]}.npz"
+
+
 def write_json_atomic(path: Path, data: dict) -> None:
     with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
@@ -191,9 +207,15 @@ def clean_folder(folder: Path, plan: list[Chunk], keep: set[str], opts_hash: str
     of the chunks removed. Removed: temp files of a killed write of a planned chunk, planned
     chunks that are not finished (``keep`` holds the finished ones), chunks of other options
     or another input (stale), and chunks of the same run whose frames overlap the plan but
-    that are not planned (another chunk size). Chunks of the same run with other frames (other
-    farm tasks writing the same folder) are left alone. Only files this module names are touched."""
+    that are not planned (another chunk size), and shot caches of other options or another input.
+    Chunks of the same run with other frames (other farm tasks writing the same folder) are left
+    alone. Only files this module names are touched."""
     folder = Path(folder)
+    mine = shot_cache_path(folder, opts_hash, in_hash).name
+    for p in folder.glob(f"{SHOT_CACHE_PREFIX}*.npz"):
+        if p.name != mine:
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
     planned = {c.name for c in plan}
     frames = {f for c in plan for f in c.frames}
     for name in planned - keep:

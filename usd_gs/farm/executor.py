@@ -27,8 +27,9 @@ from pathlib import Path
 from pxr import Sdf
 
 from usd_gs.errors import UserError
-from usd_gs.farm.chunks import FORMAT, Chunk, sha256_file, write_json_atomic
+from usd_gs.farm.chunks import FORMAT, Chunk, sha256_file, shot_cache_key, shot_cache_path, write_json_atomic
 from usd_gs.pipeline.shot import ShotProcessor
+from usd_gs.pipeline.shot_cache import ShotCache
 from usd_gs.usd.gaussian_prim import save_stage_atomic
 
 # Numba's default (workqueue) threading layer must not be entered from two threads at once;
@@ -62,6 +63,7 @@ class ChunkResult:
     worker: str
     started: float = 0.0
     warnings: list = field(default_factory=list)
+    shot_cache: dict = field(default_factory=dict)  # {"loaded": n, "computed": n} entries of the shared cache
 
 
 def run_chunk(task: ChunkTask) -> ChunkResult:
@@ -73,9 +75,11 @@ def run_chunk(task: ChunkTask) -> ChunkResult:
     chunk = task.chunk
     layer_path = chunk.layer_path(folder)
     opts = replace(task.options, frames=chunk.frames_spec())
+    cache = ShotCache(shot_cache_path(folder, task.options_hash, task.input_hash),
+                      shot_cache_key(task.options_hash, task.input_hash))
     with _PROCESS_LOCK:
         proc = ShotProcessor(task.input_path, str(layer_path), opts, lights=task.lights,
-                             anchor_frame=task.anchor_frame)
+                             anchor_frame=task.anchor_frame, shot_cache=cache)
         summary = proc.run(progress=False)
         # the chunk layer's own range (clips contribute time samples of this range only)
         layer = Sdf.Layer.FindOrOpen(str(layer_path))
@@ -88,7 +92,8 @@ def run_chunk(task: ChunkTask) -> ChunkResult:
              "input": os.path.abspath(task.input_path), "seconds": round(time.perf_counter() - t0, 4)}
     write_json_atomic(chunk.sidecar_path(folder), entry)
     return ChunkResult(chunk.name, list(chunk.frames), time.perf_counter() - t0, dict(summary.timings),
-                       f"{os.uname().nodename}:{os.getpid()}", started, list(summary.warnings))
+                       f"{os.uname().nodename}:{os.getpid()}", started, list(summary.warnings),
+                       {"loaded": cache.loaded, "computed": cache.computed})
 
 
 def _worker_init(threads: int) -> None:

@@ -5,7 +5,7 @@
    options and the input layer stack.
 2. Split the frames into chunks; chunks whose manifest entry matches (same frames, options,
    input, intact files) are skipped, everything else in the chunk folder that this module
-   named (stale chunks, temp files of a killed run) is removed.
+   named (stale chunks, shot caches of other runs, temp files of a killed run) is removed.
 3. Run the missing chunks on the chosen backend (``usd_gs.farm.executor``).
 4. Stitch all chunks into the output as value clips (``usd_gs.farm.clips``; serial, cheap).
 """
@@ -64,7 +64,8 @@ class FarmSummary:
                 "lights": None if self.lights is None else [lt.name for lt in self.lights],
                 "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
                 "frames_per_second": round(sum(len(r.frames) for r in self.results) / wall, 3) if wall else None,
-                "chunk_seconds": {r.name: round(r.seconds, 4) for r in self.results}}
+                "chunk_seconds": {r.name: round(r.seconds, 4) for r in self.results},
+                "shot_cache": {r.name: r.shot_cache for r in self.results}}
 
 
 def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: str | None = None,

@@ -42,6 +42,7 @@ from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
 from usd_gs.pipeline import jit_warmup
 from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, sky_occlusion_params, write_lights
 from usd_gs.pipeline.options import ProcessOptions
+from usd_gs.pipeline.shot_cache import ShotCache
 from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.appearance import read_appearance
 from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
@@ -190,19 +191,27 @@ def _scene_task(block, drecv: Receivers, light, cfg: DGSMConfig, bias: float, at
     return part[0], atlas.transmittance(part[1])
 
 
+class _NotAtAnchor(Exception):
+    """A per-prim value asked for at the anchor frame whose Gaussian count differs there."""
+
+
 class ShotProcessor:
     """Runs the steps of the module docstring for one input stage. ``options`` is not modified."""
 
     def __init__(self, input_path: str, output_path: str | None, options: ProcessOptions,
-                 lights: list[ShotLight] | None = None, anchor_frame: float | None = None):
+                 lights: list[ShotLight] | None = None, anchor_frame: float | None = None,
+                 shot_cache: ShotCache | None = None):
         """``lights``: shot-level lights to use at every frame (a chunk of a farm run, see
         :meth:`shot_lights`); ``anchor_frame``: the shot's first frame when this run is a chunk
-        starting later (normals are estimated there, as in the whole-shot run)."""
+        starting later (normals are estimated there, as in the whole-shot run); ``shot_cache``:
+        the farm run's shared cache of what is computed from the anchor frame
+        (``usd_gs.pipeline.shot_cache``; written after each frame that added to it)."""
         self.input_path = str(input_path)
         self.output_path = str(output_path or default_output_path(input_path))
         self.opts = options.check()
         self.preset_lights = lights
         self.anchor_frame = anchor_frame
+        self.shot_cache = shot_cache
         self.clock = _Clock()
         self.warnings: list[str] = []
         # the shot's DGSM options: the user's with the stage's up axis (set by _open)
@@ -271,6 +280,8 @@ class ShotProcessor:
         """Lights estimated from the capture (``usd_gs.pipeline.capture_lights``: open or closed,
         sun and sky or plausible point lights); what it found goes to ``capture_lines``."""
 
+        if not hasattr(self, "static"):  # (shot_lights reads the static prims only for an estimate)
+            self._read_static()
         self.capture = estimate_for_shot(self, frames, k)
         self.capture_lines = list(self.capture.lines)
         if not self.capture.lights:
@@ -311,9 +322,9 @@ class ShotProcessor:
     def shot_lights(self) -> list[ShotLight] | None:
         """The shot-level step of a chunked run: opens the input and returns the lights estimated
         once over the whole frame range (what every chunk must use), or None where each frame
-        reads the stage's UsdLux lights or re-estimates (``lights_per_frame``). Sets ``frames``."""
+        reads the stage's UsdLux lights or re-estimates (``lights_per_frame``). Sets ``frames``; reads
+        the static prims only for an estimate."""
         self._open()
-        self._read_static()
         if self.opts.lights_per_frame:
             return None
         lights = self._lights(self.frames[0])
@@ -555,12 +566,41 @@ class ShotProcessor:
         key = (p, int(n), len(positions))
         got = self._samples.get(key)
         if got is None:
-            first = self.anchor_frame if self.anchor_frame is not None else self.frames[0]
-            if first != self._frame_now:
-                g = self._read(p, first)
-                positions = g.positions if g.count == len(positions) else positions
-            got = self_shadow_samples(positions, n)
+            first = self._first_frame()
+
+            def at_anchor():
+                g = self._read(p, first) if first != self._frame_now else None
+                if g is not None and g.count != len(positions):
+                    raise _NotAtAnchor
+                return self_shadow_samples(positions if g is None else g.positions, n)
+
+            got = self._from_anchor(("samples", p, int(n)), at_anchor, len(positions))
+            if got is None:  # the count differs from the anchor frame's: this frame's map
+                got = self_shadow_samples(positions, n)
             self._samples[key] = got
+        return got
+
+    def _first_frame(self) -> float:
+        """The shot's first (anchor) frame: ``anchor_frame`` in a farm chunk, else the first frame."""
+        return self.anchor_frame if self.anchor_frame is not None else self.frames[0]
+
+    def _from_anchor(self, key: tuple, compute, count: int | None = None):
+        """``compute()``, a tuple of arrays computed from the shot's anchor frame, or the farm run's
+        shot cache's copy (``usd_gs.pipeline.shot_cache``: the same arrays; stored there when
+        computed here); a copy whose last array does not have ``count`` rows (one per Gaussian of the
+        prim; None: any) is not used. None where ``compute`` raises ``_NotAtAnchor`` (the prim's
+        count at the anchor frame differs from this frame's: its value is this frame's, not the
+        shot's)."""
+        cache = self.shot_cache
+        got = cache.get(*key) if cache is not None else None
+        if got is not None and (count is None or got[-1].shape[0] == count):
+            return got
+        try:
+            got = tuple(compute())
+        except _NotAtAnchor:
+            return None
+        if cache is not None:
+            cache.put(key, got)
         return got
 
     def _self_points(self, q: str, g, drecv: Receivers, light):
@@ -684,14 +724,16 @@ class ShotProcessor:
                 continue
             key = ("calibrated", tuple(np.round(lt.position, 6)))
             if key not in self._scene_packs:
-                centre = self._calibration_centre(centre)
-                mine = ~self._emitter_mask([lt], everything, spans)
-                size = self.opts.probe_size
-                rgb, alpha, _ = render_probe_faces(everything, centre, size, mine)
-                lin = linear_faces(rgb, alpha, self.opts.color_space)
-                e = (lin * cube_face_solid_angles(size)[..., None]).reshape(-1, 3).sum(axis=0)
-                r2 = float(np.sum((np.asarray(lt.position, np.float64) - centre) ** 2))
-                self._scene_packs[key] = e * r2
+                def calibrate(light=lt):
+                    at = self._calibration_centre(centre)
+                    mine = ~self._emitter_mask([light], everything, spans)
+                    size = self.opts.probe_size
+                    rgb, alpha, _ = render_probe_faces(everything, at, size, mine)
+                    lin = linear_faces(rgb, alpha, self.opts.color_space)
+                    e = (lin * cube_face_solid_angles(size)[..., None]).reshape(-1, 3).sum(axis=0)
+                    return (e * float(np.sum((np.asarray(light.position, np.float64) - at) ** 2)),)
+
+                self._scene_packs[key] = self._from_anchor(("calibrated", *(float(v) for v in key[1])), calibrate)[0]
             out.append(replace(lt, color=self._scene_packs[key], intensity=1.0, radius=0.0, shape="point"))
         return out
 
@@ -904,14 +946,23 @@ class ShotProcessor:
         by its rotation; re-estimated when the Gaussian count changes."""
         local = self._local_normals.get(path)
         first = None
+
+        def estimate(h):
+            return (normals_to_local(h.orientations, gaussian_normals(h.positions, h.orientations, h.scales,
+                                                                      h.opacities)),)
+
         if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
-            first = self._read(path, self.anchor_frame)  # a chunk: normals and clusters from the shot's first frame
-            local = normals_to_local(first.orientations, gaussian_normals(first.positions, first.orientations,
-                                                                          first.scales, first.opacities))
+            def at_anchor():  # a chunk: normals and clusters from the shot's first frame
+                nonlocal first
+                first = self._read(path, self.anchor_frame)
+                return estimate(first)
+
+            local = self._from_anchor(("normals", path), at_anchor)[0]
             self._local_normals[path] = local
         if local is None or local.shape[0] != g.count:
-            n = gaussian_normals(g.positions, g.orientations, g.scales, g.opacities)
-            local = normals_to_local(g.orientations, n)
+            anchored = local is None and frame == self._first_frame()
+            local = (self._from_anchor(("normals", path), partial(estimate, g), g.count) if anchored
+                     else estimate(g))[0]
             self._local_normals[path] = local
         return local, first
 
@@ -929,13 +980,25 @@ class ShotProcessor:
         local, first = self._prim_local_normals(path, g, frame)
         blend = self._probe_blends.get(path)
         if blend is None or blend.labels.shape[0] != g.count:
-            rest = g
-            if blend is None and self.anchor_frame is not None and self.anchor_frame != frame:
+            def build(h):
+                b = ProbeBlend.build(h.positions, self.opts.probe_points)
+                return b.labels, b.weights
+
+            def at_anchor():
                 # a chunk: the probe clusters of the whole-shot run, from the shot's first frame (the
                 # normals may have been estimated there already by the shadow pass: read it again)
-                first = first if first is not None else self._read(path, self.anchor_frame)
-                rest = first if first.count == g.count else g
-            blend = ProbeBlend.build(rest.positions, self.opts.probe_points)
+                h = first if first is not None else self._read(path, self.anchor_frame)
+                if h.count != g.count:
+                    raise _NotAtAnchor
+                return build(h)
+
+            got = None
+            if blend is None and frame == self._first_frame():
+                got = self._from_anchor(("blend", path), partial(build, g), g.count)
+            elif blend is None and self.anchor_frame is not None:
+                got = self._from_anchor(("blend", path), at_anchor, g.count)
+            blend = ProbeBlend.from_arrays(*got) if got is not None else ProbeBlend.build(g.positions,
+                                                                                           self.opts.probe_points)
             self._probe_blends[path] = blend
         normals = local_normals_to_world(g.orientations, local)
         job = dict(g=g, everything=everything, mask=mask, centre=centre, normals=normals, blend=blend, opts=self.opts,
@@ -978,6 +1041,23 @@ class ShotProcessor:
             return self._run(t_start, progress)
         finally:
             jit_warmup.stop(warmup)
+
+    def _save_shot_cache(self) -> None:
+        """Write the farm run's shot cache when this frame added to it; a cache that cannot be
+        written (or read: ``problem``) costs the other chunks time, not results: a warning."""
+        cache = self.shot_cache
+        if cache is None:
+            return
+        t0 = time.perf_counter()
+        if cache.problem and cache.problem not in self.warnings:
+            self.warnings.append(cache.problem)
+        try:
+            cache.save()
+        except OSError as exc:
+            msg = f"{cache.path}: shot cache not written ({exc}); other chunks compute its values again"
+            if msg not in self.warnings:
+                self.warnings.append(msg)
+        self.clock.add("shot_cache", t0)
 
     def _deinstance(self, out_stage) -> None:
         """Instanced Gaussian prims (read through instance proxies) cannot take the output's
@@ -1060,6 +1140,7 @@ class ShotProcessor:
                 written_lights = False
                 for f in frames:
                     self._frame(f, author, probe_dir)
+                    self._save_shot_cache()
                     if not written_lights and self.lights_used and self.lights_used[0].source == "estimated":
                         self._write_lights(out.stage, [lt for lt in self.lights_used if lt.source == "estimated"],
                                            probe_dir)

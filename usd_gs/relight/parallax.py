@@ -221,6 +221,11 @@ class ProbeBlend:
         w = blend_weights(positions, cluster_centres(positions, labels, k)) if labels.size else np.ones((0, 1))
         return cls(labels, k, np.ascontiguousarray(w, dtype=np.float32))
 
+    @classmethod
+    def from_arrays(cls, labels: np.ndarray, weights: np.ndarray) -> ProbeBlend:
+        """The blend that :meth:`build` returned as ``labels`` and ``weights`` (a stored copy)."""
+        return cls(labels, int(weights.shape[1]), weights)
+
     def centres(self, positions: np.ndarray) -> np.ndarray:
         """(K, 3) this frame's probe points (the labels' mean positions)."""
         return cluster_centres(positions, self.labels, self.k)
