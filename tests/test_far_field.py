@@ -127,6 +127,32 @@ def test_prims_in_one_cell_share_a_far_layer():
     assert all(np.array_equal(x, y) for x, y in zip(got, ref, strict=True))
 
 
+def test_far_layer_from_a_shot_cache_file_is_the_rendered_one(tmp_path):
+    """A farm chunk's far layer goes to the shot cache file; a later chunk (new stores, the file
+    read again) composites the same layer without rendering it: the same faces bit for bit.
+    Layers with nothing far are not stored."""
+    from usd_gs.pipeline.shot_cache import ShotCache
+
+    everything, s = _scene()
+    mask = np.ones(everything.count, bool)
+    path = tmp_path / "shot_cache.npz"
+    cache = ShotCache(path, "run")
+    first = FarField(10.0, 0.05, s, FarLayers(2, backing=cache))
+    ref = first.render(everything, np.array([0.1, 0.0, 0.0]), SIZE, mask)
+    FarField(100.0, 0.05, s, FarLayers(2, backing=cache)).render(everything, np.zeros(3), SIZE, mask)  # nothing far
+    assert first.renders == 1 and cache.computed == 1 and cache.save()
+    again = ShotCache(path, "run")
+    later = FarField(10.0, 0.05, s, FarLayers(2, backing=again))
+    got = later.render(everything, np.array([0.1, 0.0, 0.0]), SIZE, mask)
+    assert later.renders == 0 and again.loaded == 1
+    assert all(np.array_equal(x, y) for x, y in zip(got, ref, strict=True))
+    other = np.ones(everything.count, bool)
+    other[:10] = False  # another mask (other emitters): another layer, rendered
+    fresh = FarField(10.0, 0.05, s, FarLayers(2, backing=again))
+    fresh.render(everything, np.array([0.1, 0.0, 0.0]), SIZE, other)
+    assert fresh.renders == 1
+
+
 @pytest.mark.parametrize("radius, tolerance", [(0.0, 0.05), (10.0, 0.0), (10.0, 0.6)])
 def test_bad_parameters(radius, tolerance):
     with pytest.raises(ValueError):

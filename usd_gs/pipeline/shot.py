@@ -1016,8 +1016,9 @@ class ShotProcessor:
         far = self._far_fields.get(path)
         if far is None or far.static_count != static_count:
             layers = self._far_fields.get(("layers", static_count))
-            if layers is None:  # one store per static part, shared by the relit prims
-                layers = self._far_fields[("layers", static_count)] = FarLayers(KEEP * len(self._relit_paths))
+            if layers is None:  # one store per static part, shared by the relit prims (and a farm run's chunks)
+                layers = FarLayers(KEEP * len(self._relit_paths), backing=self.shot_cache)
+                self._far_fields[("layers", static_count)] = layers
             far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count, layers)
         return far
 

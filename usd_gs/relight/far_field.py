@@ -33,6 +33,7 @@ Where no static Gaussian lies beyond ``radius`` the result is the full render's,
 
 from __future__ import annotations
 
+import hashlib
 import threading
 
 import numpy as np
@@ -60,13 +61,24 @@ def composite_faces(near: tuple, far: tuple) -> tuple:
     return rgb.astype(np.float32), alpha.astype(np.float32), depth.astype(np.float32)
 
 
+def _digest(mask: np.ndarray) -> int:
+    """A 64-bit digest of a bool mask that is the same in every process (a far layer's key)."""
+    return int.from_bytes(hashlib.blake2b(np.packbits(mask).tobytes(), digest_size=8).digest(), "little")
+
+
 class FarLayers:
     """The far layers of one shot's static part, shared by its relit prims' :class:`FarField`
     caches (thread-safe: the prims' probe tasks run side by side): layers by key, the last
-    ``keep`` used, and each anchor's clearance test (:meth:`clear`)."""
+    ``keep`` used, and each anchor's clearance test (:meth:`clear`).
 
-    def __init__(self, keep: int = KEEP):
+    ``backing``: None, or a store that outlives the process (a farm run's shot cache,
+    ``usd_gs.pipeline.shot_cache.ShotCache``: ``get(*key)`` -> tuple of arrays or None,
+    ``put(key, arrays)``): a layer missing here is looked up there before it is rendered, and a
+    rendered layer with a far part is stored there (keys of str, int and float only)."""
+
+    def __init__(self, keep: int = KEEP, backing=None):
         self.keep = max(1, int(keep))
+        self.backing = backing
         self._lock = threading.Lock()
         self._layers: list = []  # [(key, (near indices or None, faces or None))], most recent first
         self._clear: dict = {}
@@ -77,11 +89,20 @@ class FarLayers:
                 if k == key:
                     self._layers.insert(0, self._layers.pop(i))
                     return value
-        return None
+        got = self.backing.get("far layer", *key) if self.backing is not None else None
+        if got is None:
+            return None
+        value = (got[0], tuple(got[1:]))
+        self.put(key, value, keep_only=True)
+        return value
 
-    def put(self, key, value) -> None:
+    def put(self, key, value, keep_only: bool = False) -> None:
+        """Keep layer ``value`` (``(near indices, faces)``) under ``key``; also in the backing
+        store unless ``keep_only`` or the layer has no far part."""
         with self._lock:
             self._layers = [(key, value), *[kv for kv in self._layers if kv[0] != key]][:self.keep]
+        if self.backing is not None and not keep_only and value[1] is not None:
+            self.backing.put(("far layer", *key), (value[0], *value[1]))
 
     def clear(self, static_positions: np.ndarray, anchor: np.ndarray, inner: float, outer: float) -> bool:
         """True when no static Gaussian centre lies farther than ``inner`` and within ``outer`` of
@@ -138,7 +159,8 @@ class FarField:
         static = everything.positions[:s]
         self.level, a = self.level_anchor(static, centre)
         # (a layer depends on its anchor, not on the level that chose it)
-        key = (tuple(a), int(size), float(dilation), int(supersample), everything.count, hash(mask[:s].tobytes()))
+        key = (*(float(v) for v in a), int(size), float(dilation), int(supersample), int(everything.count),
+               _digest(mask[:s]))
         hit = self._store.get(key)
         if hit is None:
             beyond = ~within_capsule(static, a, a, self.radius)
