@@ -204,7 +204,9 @@ def warm_up(groups=GROUPS) -> None:
         drecv = Receivers.build([("/avatar", avatar)])
         part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
         keep = ~within_capsule(scene.positions, light.position, light.position, opts.emitter_radius)  # _emitter_keep
-        StaticSceneAtlas(scene, light.position, centre_cfg, keep=keep).transmittance(part[1])
+        atlas = StaticSceneAtlas(scene, light.position, centre_cfg, keep=keep)
+        for _ in range(2):  # (the second lookup is a later frame's: its reach test)
+            atlas.transmittance(part[1])
         parts = [receiver_points(avatar, recv, light, opts.dgsm, roi=opts.roi),
                  receiver_points(avatar, drecv, light, opts.dgsm, exclude="/avatar", roi=opts.roi)]
         (idx, val), _ = shared_transmittance(avatar, parts, light, opts.dgsm, prepare_occluders(avatar, opts.dgsm))

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
+from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from usd_gs.gaussians import GaussianSet
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
 from usd_gs.shadows.lattice_index import LatticeIndex
@@ -160,11 +161,12 @@ class StaticSceneAtlas:
         reach holding them and the old one (grown by half, plus one scene unit, so that walking
         avatars seldom leave it) is taken and the occluders that can matter to a lookup inside it
         are packed again (the columns computed so far are dropped: same values, computed again)."""
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
         if self.reach is not None:
             c, r = self.reach
-            if np.sqrt(np.max(np.sum((pts - c) ** 2, axis=1))) <= r:
+            if within_capsule(pts, c, c, r).all():  # (one threaded pass: the usual frame ends here)
                 return
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        if self.reach is not None:
             lo, hi = np.minimum(lo, c - r), np.maximum(hi, c + r)
         centre = 0.5 * (lo + hi)
         radius = 0.5 * float(np.linalg.norm(hi - lo))
@@ -179,8 +181,6 @@ class StaticSceneAtlas:
         point of the reach, so an occluder outside it adds nothing to a voxel a lookup there reads.
         The margin covers the voxels those lookups blend: one radial bin beyond the point and the
         neighbouring pixels' rays (two pixel angles of the octahedral map, at most 4/W radians)."""
-        from numba_kernels.capsule import within_capsule_scaled
-
         length = float(np.linalg.norm(centre - self.light))
         far = length + radius + self.t_max / self.K
         margin = self.t_max / self.K + 2.0 * (4.0 / self.width) * far
