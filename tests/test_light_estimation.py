@@ -238,6 +238,44 @@ def test_edge_cases(scene_deg0):
         estimate_lights(g, [0.0, np.nan, 0.0], k=2)
 
 
+def test_far_gaussians_change_nothing_and_are_not_scanned(scene_deg0, monkeypatch):
+    """A scene with three times its Gaussians in a block 40 m away (outside the 6 m ROI): the
+    lights and planar emitters are those of the whole-scene path bit for bit (the kernel on the
+    ROI's Gaussians only, indices mapped back), and the ROI path was the one taken."""
+    import usd_gs.relight.light_estimation as le
+
+    g, c = scene_deg0.gaussians, scene_deg0.centroid
+    far = GaussianSet.concatenate([g, g, g])
+    far.positions[:] += np.float32([40.0, 0.0, 0.0])
+    both = GaussianSet.concatenate([far, g])  # (the near part last: mapped indices must move)
+    taken = []
+    roi_scene = le._roi_scene
+
+    def spy(*args):
+        out = roi_scene(*args)
+        taken.append(out[1] is not None)
+        return out
+
+    monkeypatch.setattr(le, "_roi_scene", spy)
+    new = estimate_lights(both, c, k=3)
+    new_rect = le.estimate_rect_lights(both, c)
+    assert taken == [True, True]
+    monkeypatch.setattr(le, "_roi_scene", lambda s, centre, r: (s, None))
+    old = estimate_lights(both, c, k=3)
+    old_rect = le.estimate_rect_lights(both, c)
+    assert len(new) == len(old) == 3 and len(new_rect) == len(old_rect) >= 1
+    for a, b in zip(new, old, strict=True):
+        assert a.index == b.index and a.index >= far.count
+        assert np.array_equal(a.position, b.position) and np.array_equal(a.color, b.color)
+        assert (a.intensity, a.score) == (b.intensity, b.score)
+    assert repr(new_rect) == repr(old_rect)
+    # a non-finite value anywhere (here far outside the ROI) is still named
+    bad = replace(both, sh=both.sh.copy(), label="big.ply")
+    bad.sh[5, 0, 2] = np.inf
+    with pytest.raises(GaussianDataError, match=r"big\.ply.*'sh' element 5"):
+        estimate_lights(bad, c, k=2)
+
+
 def test_alpha_weighted_centroid():
     g = _random_set(50, 0, seed=9)
     a = g.opacities.astype(np.float64)

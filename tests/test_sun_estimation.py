@@ -74,6 +74,37 @@ def test_open_and_closed_decisions(sunny, room):
     assert not d_room.is_open and d_room.empty_share < 0.05 and len(d_room.compact) == 2
 
 
+def test_empty_sky_share_near_first(sunny, room, monkeypatch):
+    """The open/closed render draws the near Gaussians first: a closed room with a block of
+    Gaussians 40 m away gets share 0 from the near render alone (the far block is not drawn);
+    an open scene with the same far block and a room whose ceiling is cut open draw everything,
+    and every share equals the plain render's."""
+    far_block = GaussianSet.concatenate([room.gaussians, room.gaussians])
+    far_block.positions[:] += np.float32([40.0, 0.0, 0.0])
+    drawn = []
+    render = se.render_cube_faces
+
+    def spy(g, centre, size, mask=None, order=None, **kw):
+        drawn.append(g.count if order is None and mask is None else int(np.count_nonzero(mask) if order is None
+                                                                           else len(order)))
+        return render(g, centre, size, mask=mask, order=order, **kw)
+
+    monkeypatch.setattr(se, "render_cube_faces", spy)
+    inside = np.array([-1.6, 0.9, -0.4])
+    closed = GaussianSet.concatenate([room.gaussians, far_block])
+    assert se.empty_sky_share(closed, inside, "Y", near_radius=15.0) == 0.0
+    assert drawn == [room.gaussians.count]  # the room alone decided it
+    assert se.empty_sky_share(closed, inside, "Y") == 0.0
+    top = room.gaussians.positions[:, 1].max()
+    cut = room.gaussians.subset(np.flatnonzero(room.gaussians.positions[:, 1] < top - 0.05))  # no ceiling
+    for g, c in ((GaussianSet.concatenate([sunny.gaussians, far_block]), CENTRE),
+                 (GaussianSet.concatenate([cut, far_block]), inside)):
+        drawn.clear()
+        got = se.empty_sky_share(g, c, "Y", near_radius=15.0)
+        want = se.empty_sky_share(g, c, "Y")
+        assert got == want > 0.05 and drawn[-2:] == [g.count, g.count]
+
+
 def _cluster(centre, n=48, radius=0.06, gain=6.0, seed=0):
     rng = np.random.default_rng(seed)
     d = rng.standard_normal((n, 3))

@@ -728,7 +728,8 @@ class ShotProcessor:
                     at = self._calibration_centre(centre)
                     mine = ~self._emitter_mask([light], everything, spans)
                     size = self.opts.probe_size
-                    rgb, alpha, _ = render_probe_faces(everything, at, size, mine)
+                    # (the emitter's few Gaussians by index: no pass over the shot's others, the same image)
+                    rgb, alpha, _ = render_probe_faces(everything, at, size, None, order=np.flatnonzero(mine))
                     lin = linear_faces(rgb, alpha, self.opts.color_space)
                     e = (lin * cube_face_solid_angles(size)[..., None]).reshape(-1, 3).sum(axis=0)
                     return (e * float(np.sum((np.asarray(light.position, np.float64) - at) ** 2)),)

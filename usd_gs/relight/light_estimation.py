@@ -148,6 +148,25 @@ def make_viewpoints(centroid, config: LightEstimationConfig, meters_per_unit: fl
     return out
 
 
+def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float) -> tuple[GaussianSet, np.ndarray | None]:
+    """``(scene, None)``, or, where every value is finite and the ROI ball (``roi_radius`` scene
+    units around ``centre``) holds at most half of the Gaussians, ``(its Gaussians, their indices
+    in scene)``: the kernel's steps read only ROI Gaussians (the status, cues, tail and
+    neighbourhoods of the others are zero or unused), so the sub-scene gives the same lights, bit
+    for bit, with indices mapped back; a scene far larger than the ROI is not scanned again. A
+    non-finite value anywhere keeps the whole scene (the kernel names the element)."""
+    from numba_kernels.capsule import within_capsule
+    from usd_gs.usd.gaussian_layer import _all_finite
+
+    if scene.count < 2 or not all(_all_finite(a) for a in (scene.positions, scene.opacities, scene.sh)):
+        return scene, None
+    # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
+    near = np.flatnonzero(within_capsule(scene.positions, centre, centre, float(roi_radius)))
+    if near.size > scene.count // 2:
+        return scene, None
+    return scene.subset(near), near
+
+
 def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
                     config: LightEstimationConfig | None = None, meters_per_unit: float = 1.0) -> list[EstimatedLight]:
     """The ``k`` dominant point lights of ``scene`` as seen from ``avatar_centroid`` (3,).
@@ -165,8 +184,11 @@ def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
     from numba_kernels.light_estimation import STATUS_NONFINITE, estimate_lights_arrays
 
     cfg = config.in_scene_units(meters_per_unit)
-    res = estimate_lights_arrays(scene.positions, scene.opacities, scene.sh, c,
+    roi, rows = _roi_scene(scene, c, cfg.roi_radius)
+    res = estimate_lights_arrays(roi.positions, roi.opacities, roi.sh, c,
                                  make_viewpoints(c, config, meters_per_unit), int(k), cfg)
+    if rows is not None:
+        res["index"] = rows[res["index"]]
     bad = np.flatnonzero(res["status"] == STATUS_NONFINITE)
     if bad.size:
         i = int(bad[0])
@@ -285,6 +307,7 @@ def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightC
 
     mpu = float(meters_per_unit)
     cfg = light_config.in_scene_units(mpu)
+    scene, rows = _roi_scene(scene, c, cfg.roi_radius)  # (what follows reads ROI Gaussians only)
     res = estimate_lights_arrays(scene.positions, scene.opacities, scene.sh, c,
                                  make_viewpoints(c, light_config, mpu), 0, cfg)
     bad = np.flatnonzero(res["status"] == STATUS_NONFINITE)
@@ -306,9 +329,11 @@ def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightC
     roots, counts = np.unique(labels, return_counts=True)
     out = []
     for root in roots[counts >= config.min_count]:  # a loop over clusters, not Gaussians
-        rows = np.flatnonzero(labels == root)
-        light = _planar_cluster(scene, c, bright[rows], p[rows], base, raw, med, config, mpu)
+        members = np.flatnonzero(labels == root)
+        light = _planar_cluster(scene, c, bright[members], p[members], base, raw, med, config, mpu)
         if light is not None:
+            if rows is not None:  # (indices in the caller's scene)
+                light = replace(light, index=rows[light.index])
             out.append(light)
     out.sort(key=lambda r: -r.score)
     return out

@@ -97,7 +97,10 @@ class CaptureConfig:
 
     open/closed: ``horizon_deg`` (10), ``open_share`` (0.25: open when at least this share of the
     sky above the horizon is empty and no compact emitter exists), ``open_share_alone`` (0.6),
-    ``probe_size`` (32), emitters: ``emitter_luminance`` (1.05), ``emitter_peakness`` (4),
+    ``probe_size`` (32), ``sky_near_radius`` (15 m: the render draws the Gaussians this close to
+    the avatars first; where they cover the whole sky above the horizon the rest cannot uncover
+    any of it, so the answer is the same without drawing them), emitters: ``emitter_luminance``
+    (1.05), ``emitter_peakness`` (4),
     ``emitter_peakness_alone`` (8), ``emitter_candidates`` (6).
     sun: ``receiver_radius`` (4 m around the avatars), ``caster_radius`` (8 m), ``ground_band``
     (0.06 m), ``ground_search`` (0.5 m around the ground hint), ``flat_cos`` (0.85: |normal.up|
@@ -121,6 +124,7 @@ class CaptureConfig:
     open_share: float = 0.25
     open_share_alone: float = 0.6
     probe_size: int = 32
+    sky_near_radius: float = 15.0
     emitter_luminance: float = 1.05
     emitter_peakness: float = 4.0
     emitter_peakness_alone: float = 8.0
@@ -210,20 +214,33 @@ class CaptureDecision:
 
 
 def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 32, horizon_deg: float = 10.0,
-                    mask=None) -> float:
+                    mask=None, near_radius: float | None = None) -> float:
     """Solid-angle weighted share of the directions with elevation >= ``horizon_deg`` that a
-    cube render of ``scene`` from ``centre`` leaves empty (alpha < 0.5)."""
+    cube render of ``scene`` from ``centre`` leaves empty (alpha < 0.5). ``near_radius`` (scene
+    units; None: off): where fewer than all Gaussians lie that close to ``centre``, those are
+    drawn first, and when they alone cover every such direction (alpha >= 0.5 + 1e-4: drawing
+    more Gaussians only lowers a texel's transmittance) the share is 0 without drawing the rest;
+    otherwise the whole scene is drawn as without it."""
 
-    _, alpha, _ = render_cube_faces(scene, np.asarray(centre, np.float64), int(size), mask=mask)
-    d = cube_face_directions(int(size))
+    centre = np.asarray(centre, np.float64)
+    size = int(size)
+    d = cube_face_directions(size)
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    # texel solid angle on a unit cube face ~ 1 / |d_major|^3 (d unnormalised); use the exact ratio
-    raw = cube_face_directions(int(size))
-    w = 1.0 / np.linalg.norm(raw, axis=-1) ** 3 * np.max(np.abs(raw), axis=-1) ** 3
-    el = d[..., _AXES[up_axis.upper()]]
-    sel = el >= np.sin(np.radians(horizon_deg))
+    sel = d[..., _AXES[up_axis.upper()]] >= np.sin(np.radians(horizon_deg))
     if not sel.any():
         return 0.0
+    if near_radius is not None and scene.count:
+        near = within_capsule(scene.positions, centre, centre, float(near_radius))
+        if mask is not None:
+            near &= np.asarray(mask, bool)
+        if not near.all():
+            _, alpha, _ = render_cube_faces(scene, centre, size, order=np.flatnonzero(near))
+            if np.all(alpha[sel] >= 0.5 + 1e-4):
+                return 0.0
+    _, alpha, _ = render_cube_faces(scene, centre, size, mask=mask)
+    # texel solid angle on a unit cube face ~ 1 / |d_major|^3 (d unnormalised); use the exact ratio
+    raw = cube_face_directions(size)
+    w = 1.0 / np.linalg.norm(raw, axis=-1) ** 3 * np.max(np.abs(raw), axis=-1) ** 3
     return float(np.sum(w[sel] * (alpha[sel] < 0.5)) / np.sum(w[sel]))
 
 
@@ -244,7 +261,8 @@ def classify_capture(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_
     """Open or closed (module docstring, step 1); ``candidates``: precomputed
     :func:`emitter_candidates` (computed here when None)."""
     cfg = config or CaptureConfig()
-    share = empty_sky_share(scene, centre, up_axis, cfg.probe_size, cfg.horizon_deg)
+    share = empty_sky_share(scene, centre, up_axis, cfg.probe_size, cfg.horizon_deg,
+                            near_radius=cfg.sky_near_radius / meters_per_unit)
     if candidates is None:
         candidates = emitter_candidates(scene, centre, cfg.emitter_candidates, meters_per_unit)
     compact = [c for c in candidates if c.is_compact(cfg)]
