@@ -142,9 +142,11 @@ def register_process(sub, formatter):
     f.add_argument("--chunk-size", type=int, metavar="N",
                    help="frames per chunk: one layer per chunk in --clips-dir, OUT stitches them (default: all "
                         "frames in one chunk when only --clips-dir/--workers/--scheduler is given)")
-    f.add_argument("--clips-dir", metavar="DIR", help="chunk layers and their manifest entries (default: "
-                                                      "<output stem>_clips/ beside the output); re-running skips "
-                                                      "finished chunks")
+    f.add_argument("--clips-dir", metavar="DIR", help="chunk layers, their manifest entries and the run's shot "
+                                                      "cache (shot_cache_<key>.npz: what every chunk computes from "
+                                                      "the shot's first frame, read by later chunks; safe to delete) "
+                                                      "(default: <output stem>_clips/ beside the output); "
+                                                      "re-running skips finished chunks")
     f.add_argument("--workers", type=int, metavar="N", help="run the chunks in N local processes")
     f.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="submit the chunks to a running dask.distributed scheduler (pip install 'usd-gs[farm]')")
