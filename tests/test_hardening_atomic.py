@@ -150,3 +150,34 @@ def test_stale_temp_files_of_dead_processes_removed(shot, tmp_path):
     assert not stale_file.exists() and not stale_dir.exists() and not old_style.exists()
     assert live.exists() and user_file.exists()
     assert leftovers(tmp_path) == sorted([live.name, user_file.name])
+
+
+def test_an_interrupt_waits_until_the_temp_file_is_in_hand(tmp_path, monkeypatch):
+    """A Ctrl-C right after the trial file of check_writable_folder, or atomic_output's temporary
+    file, is created (before the code that removes it is armed) arrives once it is: nothing
+    is left behind."""
+    import os
+    import signal
+    import tempfile
+
+    from usd_gs.io import atomic
+
+    real = tempfile.mkstemp
+
+    def mkstemp_then_ctrl_c(*args, **kwargs):
+        out = real(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+        return out
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp_then_ctrl_c)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # Python's own Ctrl-C
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            atomic.check_writable_folder(tmp_path, "test")
+        assert list(tmp_path.iterdir()) == []
+        with pytest.raises(KeyboardInterrupt):
+            with atomic.atomic_output(tmp_path / "out.txt") as tmp:
+                tmp.write_text("never")
+        assert list(tmp_path.iterdir()) == []
+    finally:
+        signal.signal(signal.SIGINT, previous)

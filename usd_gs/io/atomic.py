@@ -91,19 +91,62 @@ def remove_stale_temps(folder) -> list[str]:
     return removed
 
 
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive while the block runs are noted and handed to the handlers
+    they would have met once it ends (in the main thread, where Python runs signal handlers;
+    elsewhere nothing changes): a Ctrl-C cannot land between creating a file and taking charge
+    of it. Python handlers are swapped, not the signal mask: any thread may receive a signal
+    sent to the process."""
+    import signal
+    import sys
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    noted: list[int] = []
+
+    def note(signum, frame):
+        noted.append(signum)
+
+    previous = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, note)
+    except (ValueError, OSError):  # (an embedding that does not allow it: as before)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        if noted:
+            handler = previous[noted[0]]
+            if callable(handler):
+                handler(noted[0], sys._getframe())
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), noted[0])
+
+
 def check_writable_folder(folder, what: str) -> None:
-    """``UserError`` naming ``what`` unless a file can be created in ``folder`` (tries it)."""
+    """``UserError`` naming ``what`` unless a file can be created in ``folder`` (tries it; an
+    interrupt waits until the trial file is gone)."""
     from usd_gs.errors import UserError
 
     folder = os.path.abspath(os.fspath(folder))
     if not os.path.isdir(folder):
         raise UserError(f"{what}: output directory {folder} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".usdgs-check.{temp_tag()}.", dir=folder)
-    except OSError as exc:
-        raise UserError(f"{what}: cannot write into {folder} ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.unlink(tmp)
+    with signals_held():
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".usdgs-check.{temp_tag()}.", dir=folder)
+        except OSError as exc:
+            raise UserError(f"{what}: cannot write into {folder} ({exc.strerror or exc})") from None
+        os.close(fd)
+        os.unlink(tmp)
 
 
 @contextlib.contextmanager
@@ -120,14 +163,18 @@ def atomic_output(target, durable: bool = False) -> Iterator[Path]:
     if target.is_dir():
         raise UserError(f"{target}: is an existing directory, not a file that can be written")
     remove_stale_temps(target.parent)
+    tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.{temp_tag()}.", suffix=target.suffix, dir=target.parent)
-    except FileNotFoundError:
-        raise UserError(f"{target}: output directory {target.parent.absolute()} does not exist") from None
-    except OSError as exc:
-        raise UserError(f"{target}: cannot write into {target.parent.absolute()} ({exc.strerror or exc})") from None
-    os.close(fd)
-    try:
+        with signals_held():  # (an interrupt arrives once the cleanup below knows the file)
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.{temp_tag()}.", suffix=target.suffix,
+                                           dir=target.parent)
+            except FileNotFoundError:
+                raise UserError(f"{target}: output directory {target.parent.absolute()} does not exist") from None
+            except OSError as exc:
+                raise UserError(f"{target}: cannot write into {target.parent.absolute()} ({exc.strerror or exc})") \
+                    from None
+            os.close(fd)
         yield Path(tmp)
         if durable:
             with open(tmp, "rb+") as fh:
@@ -142,6 +189,7 @@ def atomic_output(target, durable: bool = False) -> Iterator[Path]:
                 raise UserError(f"{target}: cannot be replaced ({exc.strerror or exc})") from None
             raise
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        if tmp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
         raise
