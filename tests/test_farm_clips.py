@@ -98,6 +98,25 @@ def test_chunk_layers_and_topology(shot, tmp_path):
     assert probe_sh.GetTimeSamples() == [1.0, 2.0, 3.0]
 
 
+def test_compare_render_of_a_stitched_output_shows_the_input(shot, tmp_path):
+    """`usdgs render --compare` on a chunked run's output: the left half is the input (not the
+    stitched output's own topology layer, its first sublayer), the right half the output."""
+    from PIL import Image
+
+    path, _ = shot
+    out = tmp_path / "stitched.usda"
+    assert main(["process", str(path), "-o", str(out), "--frames", "1-2", "--chunk-size", "1", "-q"]) == 0
+    args = ["--frames", "2", "--width", "48", "-q"]
+    assert main(["render", str(out), "-o", str(tmp_path / "c.png"), "--compare", *args]) == 0
+    assert main(["render", str(path), "-o", str(tmp_path / "in.png"), *args]) == 0
+    assert main(["render", str(out), "-o", str(tmp_path / "out.png"), *args]) == 0
+    c, left, right = (np.asarray(Image.open(tmp_path / n)) for n in ("c.png", "in.png", "out.png"))
+    w = left.shape[1]
+    np.testing.assert_array_equal(c[:, :w], left)
+    np.testing.assert_array_equal(c[:, w + 4:], right)
+    assert left.mean() > 5.0 and np.abs(left.astype(int) - right.astype(int)).mean() > 0.1
+
+
 def test_local_processes_and_dask_cluster(shot, tmp_path):
     """Two local worker processes, then a LocalCluster with two in-process workers reached
     through ``--scheduler tcp://...`` and through a client: every stitched result equals the

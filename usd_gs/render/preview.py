@@ -239,9 +239,14 @@ def render_stage_frame(stage, frame, camera: Camera | str | None = None, width: 
 # ----------------------------------------------------------------------------- comparison
 def input_stage_path(stage) -> str:
     """The absolute path of the first sublayer of ``stage``'s root layer (for a stage written
-    by ``usdgs process``: its input). ``UserError`` when there is none."""
+    by ``usdgs process``: its input), passing over the stitched output's own topology layer
+    (``<stem>.topology.usdc`` of a chunked run: ``usd_gs.farm.clips``). ``UserError`` when there
+    is none."""
     layer = stage.GetRootLayer()
     subs = list(layer.subLayerPaths)
+    if layer.realPath:
+        own = os.path.splitext(os.path.basename(layer.realPath))[0] + ".topology.usdc"
+        subs = [s for s in subs if os.path.basename(s) != own] or subs
     if not subs:
         raise UserError(f"{stage_label(stage)}: --compare needs a processed stage (the output of 'usdgs process', "
                         "whose first sublayer is its input), but this stage has no sublayers")
