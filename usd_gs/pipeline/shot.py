@@ -751,7 +751,7 @@ class ShotProcessor:
         """The first relit prim's alpha-weighted centroid at the shot's first frame (cached)."""
         if self._calib_centre is None:
             relit = sorted(self._relit_paths, key=[r.path for r in self.roles].index)
-            first = self.anchor_frame if self.anchor_frame is not None else self.frames[0]
+            first = self._first_frame()
             g = self._read(relit[0], first) if relit else None
             self._calib_centre = alpha_weighted_centroid(g) if g is not None and g.count else np.asarray(fallback)
         return self._calib_centre

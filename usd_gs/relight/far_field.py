@@ -110,9 +110,9 @@ class FarLayers:
         key = (tuple(anchor), float(inner), float(outer))
         with self._lock:
             hit = self._clear.get(key)
-        if hit is None:
-            hit = bool(np.count_nonzero(within_capsule(static_positions, anchor, anchor, outer))
-                       == np.count_nonzero(within_capsule(static_positions, anchor, anchor, inner)))
+        if hit is None:  # (the inner ball lies in the outer one: test its candidates only)
+            ring = np.flatnonzero(within_capsule(static_positions, anchor, anchor, outer))
+            hit = bool(within_capsule(static_positions[ring], anchor, anchor, inner).all())
             with self._lock:
                 self._clear[key] = hit
         return hit

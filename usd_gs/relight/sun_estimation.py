@@ -280,12 +280,17 @@ def smallest_axes(g: GaussianSet, idx: np.ndarray | None = None) -> np.ndarray:
     return r[np.arange(len(s)), :, k]
 
 
+def _flat_rows(g: GaussianSet, idx: np.ndarray, up: np.ndarray, flat_cos: float) -> np.ndarray:
+    """(M,) bool over the rows ``idx``: the Gaussians whose smallest axis is within ``flat_cos`` of
+    ``up`` (the axes are computed for those rows only)."""
+    return np.abs(smallest_axes(g, idx) @ up) >= flat_cos
+
+
 def _flat_among(g: GaussianSet, sel: np.ndarray, up: np.ndarray, flat_cos: float) -> np.ndarray:
-    """``sel`` (N,) bool narrowed to the Gaussians whose smallest axis is within ``flat_cos`` of
-    ``up`` (the axes are computed for the selected rows only)."""
+    """``sel`` (N,) bool narrowed to the flat Gaussians (:func:`_flat_rows`)."""
     idx = np.flatnonzero(sel)
     out = np.zeros_like(sel)
-    out[idx[np.abs(smallest_axes(g, idx) @ up) >= flat_cos]] = True
+    out[idx[_flat_rows(g, idx, up, flat_cos)]] = True
     return out
 
 
@@ -313,17 +318,17 @@ def ground_height(g: GaussianSet, up: np.ndarray, centre, radius: float, hint: f
     h = p @ up
     horiz = (p - c) - np.outer(h - c @ up, up)
     near = np.einsum("ij,ij->i", horiz, horiz) <= radius * radius
-    sel_c = near & (g.opacities[cand] > 0.2)
+    rows = near & (g.opacities[cand] > 0.2)  # (over cand)
     if hint is not None:
-        sel_c &= np.abs(h - hint) <= search
-    sel = np.zeros(g.count, bool)
-    sel[cand[sel_c]] = True
-    sel = _flat_among(g, sel, up, flat_cos)
-    if sel.sum() < 10:
+        rows &= np.abs(h - hint) <= search
+    rows = np.flatnonzero(rows)
+    rows = rows[_flat_rows(g, cand[rows], up, flat_cos)]
+    if rows.size < 10:
         return None
-    s = np.sort(g.scales[sel], axis=1)
-    w = g.opacities[sel] * s[:, 1] * s[:, 2]
-    hs = h[sel[cand]]
+    idx = cand[rows]
+    s = np.sort(g.scales[idx], axis=1)
+    w = g.opacities[idx] * s[:, 1] * s[:, 2]
+    hs = h[rows]
     lo, hi = hs.min(), hs.max()
     nb = max(int(np.ceil((hi - lo) / bin_size)), 1)
     hist, edges = np.histogram(hs, bins=nb, range=(lo, lo + nb * bin_size), weights=w)
