@@ -16,6 +16,7 @@ import pytest
 from farm_compare import stage_differences
 from pxr import Sdf
 
+import usd_gs
 from usd_gs.cli import main
 from usd_gs.farm.chunks import Chunk, plan_chunks
 
@@ -42,8 +43,11 @@ def copied(quick_demo, tmp_path_factory):
 
 
 def _run(args, **kw):
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    return subprocess.Popen([sys.executable, "-m", "usd_gs.cli", *args], env=env, stdout=subprocess.PIPE,
+    # the copy of the package this test imported (the installed one in CI; -P: not the checkout in
+    # the current directory): another copy has its own numba cache and would compile every kernel again
+    here = str(Path(usd_gs.__file__).resolve().parents[1])
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", PYTHONPATH=here)
+    return subprocess.Popen([sys.executable, "-P", "-m", "usd_gs.cli", *args], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, **kw)
 
 
