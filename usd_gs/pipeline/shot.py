@@ -631,11 +631,11 @@ class ShotProcessor:
         """``[(path, relight_factors keyword arguments without visibility)]`` of every relit avatar
         and object at ``frame`` (:meth:`_relight_inputs`)."""
         jobs = []
-        for r in self.roles:
-            if r.per_frame and r.relight and r.role in ("avatar", "object"):
-                everything, spans = self._shot_buffer(dyn)
-                jobs.append((r.path, self._relight_inputs(r.path, sets[r.path], everything, spans[r.path], frame,
-                                                          lights, spans)))
+        relit = [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
+        if relit:
+            everything, spans = self._shot_buffer(dyn)
+        for path in relit:
+            jobs.append((path, self._relight_inputs(path, sets[path], everything, spans[path], frame, lights, spans)))
         return jobs
 
     def _relight_pass(self, jobs: list, transfers: list, frame: float, author, probe_dir: Path, lights=(),
