@@ -219,13 +219,22 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     ``order`` is not empty), the bit mask of the cameras whose image its support may touch
     (conservative).
 
-    cams (K, 22) float64 rows: view_rot (9, row-major), view_t (3), fx, fy, cx, cy, near, far,
-    guard-band clamp (x/z min, max, y/z min, max) as built by ``rasterize``.
+    cams (K, 23) float64 rows: view_rot (9, row-major), view_t (3), fx, fy, cx, cy, near, far,
+    guard-band clamp (x/z min, max, y/z min, max), and ``A`` with ``||J||_F <= A / z`` inside the
+    guard band, as built by ``rasterize``.
+
+    A camera the splat misses by far (the other faces of a cube render, most of a wide scene) is
+    rejected first without a division: with ``e <= sqrt(q) (smax A / z + sqrt(dilation))`` (the
+    half-extent bound below, ``sqrt(a + b) <= sqrt(a) + sqrt(b)``), the centre's pixel ``u = fx x
+    / z + cx`` lies left of the image by more than ``e`` when ``fx x + (cx - 0.5) z + sqrt(q) (smax
+    A + sqrt(dilation) z) < 0`` (likewise right, above, below); the test keeps a relative margin
+    of 1e-3 and 1e-3 px, so it rejects only what the full test rejects.
     """
     n = positions.shape[0]
     ncam = cams.shape[0]
     use_mask = include.shape[0] == n
     use_order = order.shape[0] > 0
+    sdil = math.sqrt(max(dilation, 0.0))
     for k_ in range(i0_, i1_):
         g = order[k_] if use_order else k_
         vis[k_] = 0
@@ -241,6 +250,7 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
         bits = 0
         qcut = -1.0
         smax = 0.0
+        sq = 0.0
         for k in range(ncam):
             c = cams[k]
             z = c[6] * px + c[7] * py + c[8] * pz + c[11]
@@ -248,13 +258,21 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
                 continue
             x = c[0] * px + c[1] * py + c[2] * pz + c[9]
             y = c[3] * px + c[4] * py + c[5] * pz + c[10]
-            iz = 1.0 / z
-            u = c[12] * x * iz + c[14]
-            v = c[13] * y * iz + c[15]
             if qcut < 0.0:
                 qcut = _support_q(op)
                 smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
                                                               abs(np.float64(scales[g, 2]))))
+                sq = math.sqrt(qcut)
+            # division-free reject (docstring): z * (e bound + margin), then each side of the image
+            ez = (sq * (smax * c[22] + sdil * z)) * 1.001 + 1e-3 * z
+            ux = c[12] * x + c[14] * z
+            vy = c[13] * y + c[15] * z
+            if (ux + ez < 0.5 * z or ux - ez > (width - 0.5) * z or vy + ez < 0.5 * z
+                    or vy - ez > (height - 0.5) * z):
+                continue
+            iz = 1.0 / z
+            u = c[12] * x * iz + c[14]
+            v = c[13] * y * iz + c[15]
             # lambda_max(J V Sigma V^T J^T) <= smax^2 ||J||_F^2 bounds the bounding-box half-extent
             tx = min(c[19], max(c[18], x * iz))
             ty = min(c[21], max(c[20], y * iz))
@@ -691,7 +709,12 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     cy_, hy_ = 0.5 * (lo_y + hi_y), 0.5 * (hi_y - lo_y)
     clamp = np.ascontiguousarray(np.stack([cx_ - guard * hx_, cx_ + guard * hx_, cy_ - guard * hy_,
                                            cy_ + guard * hy_], axis=1))
-    cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp], axis=1))
+    # ||J||_F^2 = (fx/z)^2 (1 + tx^2) + (fy/z)^2 (1 + ty^2) with tx, ty within the clamp: A^2 / z^2 at most
+    tmax_x = np.maximum(np.abs(clamp[:, 0]), np.abs(clamp[:, 1]))
+    tmax_y = np.maximum(np.abs(clamp[:, 2]), np.abs(clamp[:, 3]))
+    jbound = np.sqrt(intr[:, 0] ** 2 * (1.0 + tmax_x**2) + intr[:, 1] ** 2 * (1.0 + tmax_y**2))
+    cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp,
+                                                jbound[:, None]], axis=1))
     # large buffers are allocated by numpy (huge-page advice: far fewer page faults than numba's allocator)
     vis = np.empty(m_in, np.int64)
     run_chunks(_cull, m_in, positions, scales, opacities, include, order, cams, width, height, dilation, vis,

@@ -138,6 +138,80 @@ def test_sub_pixel_splats_are_culled_before_projection_and_the_image_is_unchange
     np.testing.assert_allclose(trans[0], t, atol=1e-4)
 
 
+def _full_cull_bits(pos, scales, opac, cams, width, height, dilation, guard=1.3):
+    """The cull's per-camera bits without its division-free early reject: the full bound of
+    ``numba_kernels.rasterize._cull``'s docstring, in numpy (float64)."""
+    from numba_kernels.rasterize import ALPHA_MIN, SUPPORT_Q
+
+    p = np.asarray(pos, np.float64)
+    op = np.minimum(1.0, np.asarray(opac, np.float64))
+    q = np.minimum(SUPPORT_Q * (1 + 1e-5), 2 * np.log(np.maximum(op, ALPHA_MIN) / ALPHA_MIN) * (1 + 1e-5) + 1e-5)
+    smax = np.abs(np.asarray(scales, np.float64)).max(axis=1)
+    bits = np.zeros(len(p), np.int64)
+    for k, cam in enumerate(cams):
+        vr, vt = cam.view_matrix()
+        fx, fy, cx, cy = cam.intrinsics()
+        v = p @ np.asarray(vr).T + vt
+        x, y, z = v[:, 0], v[:, 1], v[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            iz = 1.0 / z
+            hx, hy = 0.5 * width / fx, 0.5 * height / fy
+            mx, my = (0.5 * width - cx) / fx, (0.5 * height - cy) / fy
+            tx = np.clip(x * iz, mx - guard * hx, mx + guard * hx)
+            ty = np.clip(y * iz, my - guard * hy, my + guard * hy)
+            jf2 = (fx * iz) ** 2 * (1 + tx * tx) + (fy * iz) ** 2 * (1 + ty * ty)
+            eb = np.sqrt(q * (smax**2 * jf2 + dilation)) * (1 + 1e-6) + 1e-6
+            u, w = fx * x * iz + cx, fy * y * iz + cy
+            hit = ((z > cam.near) & (z <= cam.far) & (op >= ALPHA_MIN)
+                   & (np.minimum(np.floor(u + eb - 0.5), width - 1) >= np.maximum(np.ceil(u - eb - 0.5), 0))
+                   & (np.minimum(np.floor(w + eb - 0.5), height - 1) >= np.maximum(np.ceil(w - eb - 0.5), 0)))
+        bits |= np.where(hit, np.int64(1) << k, 0)
+    return bits
+
+
+@pytest.mark.parametrize("dilation", [0.0, 0.3])
+def test_cull_early_reject_keeps_every_pair_the_full_bound_keeps(dilation):
+    """The cull's division-free reject of the cameras a splat misses by far changes no bit: on cube
+    faces and a perspective camera, splats of every size straddling the image borders get exactly
+    the bits of the full bound (a reject too eager would drop a bit; the full bound is what decides)."""
+    from numba_kernels import rasterize as kr
+    from usd_gs.render.camera import cube_face_cameras
+
+    rng = np.random.default_rng(4)
+    n = 30000
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre = np.array([0.2, 1.0, -0.3])
+    pos = centre + d * np.exp(rng.uniform(np.log(0.05), np.log(50.0), n))[:, None]
+    scales = np.exp(rng.uniform(np.log(1e-4), np.log(2.0), (n, 3)))
+    opac = rng.uniform(0.0, 1.0, n)
+    for cams, size in ((cube_face_cameras(centre, 32), (32, 32)), ([CAM], (CAM.width, CAM.height))):
+        vm = [c.view_matrix() for c in cams]
+        vr = np.stack([v[0] for v in vm])
+        intr = np.stack([c.intrinsics() for c in cams])
+        nearfar = np.array([[c.near, c.far] for c in cams])
+        w, h = size
+        lo_x, hi_x = -intr[:, 2] / intr[:, 0], (w - intr[:, 2]) / intr[:, 0]
+        lo_y, hi_y = -intr[:, 3] / intr[:, 1], (h - intr[:, 3]) / intr[:, 1]
+        cx_, hx_, cy_, hy_ = 0.5 * (lo_x + hi_x), 0.5 * (hi_x - lo_x), 0.5 * (lo_y + hi_y), 0.5 * (hi_y - lo_y)
+        clamp = np.stack([cx_ - 1.3 * hx_, cx_ + 1.3 * hx_, cy_ - 1.3 * hy_, cy_ + 1.3 * hy_], axis=1)
+        tmx = np.maximum(np.abs(clamp[:, 0]), np.abs(clamp[:, 1]))
+        tmy = np.maximum(np.abs(clamp[:, 2]), np.abs(clamp[:, 3]))
+        jb = np.sqrt(intr[:, 0] ** 2 * (1 + tmx**2) + intr[:, 1] ** 2 * (1 + tmy**2))
+        packed = np.ascontiguousarray(np.concatenate([vr.reshape(len(cams), 9), np.stack([v[1] for v in vm]), intr,
+                                                      nearfar, clamp, jb[:, None]], axis=1))
+        vis = np.empty(n, np.int64)
+        kr._cull(0, n, pos.astype(np.float32), scales.astype(np.float32), opac.astype(np.float32),
+                 np.zeros(0, np.bool_), np.zeros(0, np.int64), packed, w, h, dilation, vis)
+        want = _full_cull_bits(pos.astype(np.float32), scales.astype(np.float32), opac.astype(np.float32), cams, w,
+                               h, dilation)
+        assert np.array_equal(vis, want)
+        # many cameras are in front of a splat that they miss: what the early reject is for
+        front = sum(((pos @ np.asarray(v[0]).T + v[1])[:, 2] > c.near).sum() for v, c in zip(vm, cams, strict=True))
+        kept = sum(bin(int(b)).count("1") for b in vis)
+        assert np.mean(vis != 0) > 0.05 and kept < 0.8 * front
+
+
 def test_reference_with_mask_and_background():
     g = _scene_random(seed=3)
     mask = np.random.default_rng(0).uniform(size=g.count) < 0.5
