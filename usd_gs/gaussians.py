@@ -356,17 +356,26 @@ class GaussianSet:
         if not sets:
             return GaussianSet.empty(label=label)
         degree = max(g.sh_degree for g in sets)
-        sets = [g if g.sh_degree == degree else g.with_sh_degree(degree) for g in sets]
 
         def cat(name):
             vals = [getattr(g, name) for g in sets]
             return None if any(v is None for v in vals) else np.concatenate(vals)
+
+        # the SH written straight into the padded result (no padded copy of each input first: a
+        # large degree-0 scene beside a degree-3 avatar would be copied twice at 16 coefficients)
+        sh = np.empty((sum(g.count for g in sets), sh3dgs.num_coeffs(degree), 3), np.float32)
+        at = 0
+        for g in sets:
+            k = g.sh.shape[1]
+            sh[at:at + g.count, :k] = g.sh
+            sh[at:at + g.count, k:] = 0.0
+            at += g.count
         keys = set(sets[0].extras)
         for g in sets[1:]:
             keys &= {k for k in g.extras if g.extras[k].shape[1:] == sets[0].extras.get(k, np.zeros(0)).shape[1:]}
         extras = {k: np.concatenate([g.extras[k] for g in sets]) for k in sorted(keys)}
         return GaussianSet(cat("positions"), cat("orientations"), cat("scales"), cat("opacities"),
-                           cat("sh"), cat("log_scales"), cat("logit_opacities"), extras, label=label)
+                           sh, cat("log_scales"), cat("logit_opacities"), extras, label=label)
 
 
 #: rows of one matmul in _matmul_rows: (rows x 3) @ (3 x 3) stays below OpenBLAS's threading threshold
