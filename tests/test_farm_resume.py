@@ -4,19 +4,16 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 from farm_compare import stage_differences
+from package_process import child_env, python
 from pxr import Sdf
 
-import usd_gs
 from usd_gs.cli import main
 from usd_gs.farm.chunks import Chunk, plan_chunks
 
@@ -43,12 +40,8 @@ def copied(quick_demo, tmp_path_factory):
 
 
 def _run(args, **kw):
-    # the copy of the package this test imported (the installed one in CI; -P: not the checkout in
-    # the current directory): another copy has its own numba cache and would compile every kernel again
-    here = str(Path(usd_gs.__file__).resolve().parents[1])
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", PYTHONPATH=here)
-    return subprocess.Popen([sys.executable, "-P", "-m", "usd_gs.cli", *args], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.Popen(python("-m", "usd_gs.cli", *args), env=child_env(NUMBA_NUM_THREADS="1"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
 
 
 def test_sigkill_then_resume(copied, tmp_path):

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hardening_util import leftovers, tiny_shot
+from package_process import child_env, python
 
 from usd_gs.cli import main
 
@@ -116,7 +117,7 @@ def test_sigterm_is_handled_like_ctrl_c(shot, tmp_path):
     assert main(["render", str(shot), "-o", str(out), "--width", "48", "-q"]) == 0
     before = out.read_bytes()
     code = _SIGTERM_CHILD.format(tests=str(Path(__file__).parent), shot=str(shot), out=str(out))
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    r = subprocess.run(python("-c", code), capture_output=True, text=True, timeout=120, env=child_env())
     assert r.returncode == 143, r.stderr
     assert "terminated" in r.stderr.splitlines()[-1]
     assert out.read_bytes() == before

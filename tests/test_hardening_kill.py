@@ -5,17 +5,16 @@ same bytes) and, after the next run, no temporary file."""
 from __future__ import annotations
 
 import hashlib
-import os
 import random
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 from hardening_util import leftovers, tiny_shot
+from package_process import child_env, python
 
 from usd_gs.cli import main
 
@@ -135,9 +134,8 @@ def test_kill_leaves_previous_output(inputs, previous, tmp_path, command, sig):
     assert before
     rng = random.Random(f"{command}-{sig}")
     code = _CHILD.format(tests=str(Path(__file__).parent), argv=argv)
-    env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             env=env)
+    child = subprocess.Popen(python("-c", code), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env=child_env(NUMBA_NUM_THREADS="1"))
     assert child.stdout.readline().strip() == "ready"
     time.sleep(rng.uniform(0.0, min(max(took, 0.05), 3.0)))
     child.send_signal(SIGNALS[sig])
