@@ -147,6 +147,15 @@ def test_export_errors_name_stage_and_prim(tmp_path, capsys):
     bad.write_text("#usda 1.0\ndef Xform \"A\" {\n")
     code, _, err = run_cli(capsys, "inspect", bad)
     assert code == 2 and "bad.usda: cannot be opened as a USD stage" in err
+    # a capture given where a stage is expected: the error says how to bring it in
+    sog = tmp_path / "lod"
+    sog.mkdir()
+    (sog / "lod-meta.json").write_text("{}")
+    for capture in (ply, sog):
+        for cmd in (["process", capture], ["render", capture, "-o", tmp_path / "f.png"], ["inspect", capture]):
+            code, _, err = run_cli(capsys, *cmd)
+            assert code == 2 and f"{capture}: is a 3DGS capture, not a USD stage" in err, err
+            assert f"usdgs import {capture} -o {capture.name.split('.')[0]}.usdc" in err and "--role avatar" in err
     code, _, err = run_cli(capsys, "export", usd, "--prim", "/World/A", "--time", "soon", "-o", tmp_path / "b.ply")
     assert code == 2 and "--time 'soon'" in err
 
