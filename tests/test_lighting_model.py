@@ -271,6 +271,39 @@ def test_unobserved_directions_filled_by_dome_or_mean():
     assert probe.radiance(np.array([0.0, 1.0, 0.0]))[0] > 0.7
 
 
+@pytest.mark.parametrize("space", ["linear", "srgb"])
+def test_without_lights_the_captured_mean_brightness_is_kept(space):
+    """No light at all, a dark floor (0.05) below and a grey ceiling (0.3) above: the absolute rule
+    makes the patch dark; ``keep_level`` scales the relit linear colours to the captured ones'
+    opacity-weighted mean luminance, and the probe's shading between directions stays (down-facing
+    Gaussians, which see the floor, against up-facing ones, which see the fill)."""
+    av, floor = _patch(), _grey_floor(0.05)
+    backdrop = _grey_floor(0.3)
+    backdrop.positions[:, 1] = 3.0  # a ceiling above: the up-facing Gaussians see it
+    av.opacities[::3] = 0.4
+    nrm = np.tile([0.0, 1.0, 0.0], (av.count, 1))
+    nrm[::2] = [0.0, -1.0, 0.0]
+    scene = GaussianSet.concatenate([floor, backdrop])
+    every = GaussianSet.concatenate([scene, av])
+    m = np.ones(every.count, bool)
+    m[scene.count:] = False
+    opts = ProcessOptions(probe_points=1, color_space=space)
+    args = (av, every, m, av.positions.mean(0), nrm, None, opts)
+    f_abs, _ = relight_factors(*args)
+    f_keep, _ = relight_factors(*args, keep_level=True)
+    c = 0.5  # the patch's displayed colour
+    dec = (lambda x: x) if space == "linear" else srgb_decode
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    relit = dec(np.clip(c * f_keep, 0, None)) @ lum
+    w = av.opacities.astype(np.float64)
+    assert float(w @ relit) / w.sum() == pytest.approx(float(dec(c)), rel=1e-4)
+    assert float(np.median(dec(c * f_abs) @ lum)) < 0.2 * float(dec(c))  # the absolute rule: dark
+    # the directions' ratio is the absolute rule's
+    r_abs = np.median(dec(c * f_abs[1::2]) @ lum) / np.median(dec(c * f_abs[::2]) @ lum)
+    r_keep = np.median(relit[1::2]) / np.median(relit[::2])
+    assert r_keep == pytest.approx(r_abs, rel=1e-4) and r_abs > 2.0  # up-facing over down-facing: ceiling, floor
+
+
 def test_srgb_relighting_is_linear_in_light():
     """Colour 0.5 (display) under a uniform sky of radiance 2: the linear colour doubles, so the
     displayed value is encode(2 decode(0.5)), not 1.0."""

@@ -296,3 +296,38 @@ def test_a_static_avatar_is_relit_and_casts(tmp_path):
     assert lit.GetPrimAtPath("/UsdGs/Probes/Statue")
     t = lit.GetPrimAtPath("/World/Room").GetAttribute("primvars:usdgs:transmittance")
     assert t and np.min(np.asarray(t.Get(t.GetTimeSamples()[0]))) < 0.9  # the statue shadows the room
+
+
+def test_a_shot_without_any_light_keeps_the_relit_prims_mean_brightness(tmp_path, monkeypatch, capsys):
+    """No light on the stage and none found in the capture: the main job relights with the probe
+    alone but keeps each relit prim's captured mean brightness (``keep_level_without_lights``) and
+    says so; with the option off the absolute rule's level comes out (here darker)."""
+    from hardening_util import tiny_shot
+
+    import usd_gs.pipeline.shot as shot
+    from usd_gs.colorspace import to_linear
+
+    stage = tiny_shot(tmp_path / "shot.usda")
+    s = Usd.Stage.Open(str(stage))
+    s.RemovePrim("/World/Lamp")
+    s.GetRootLayer().Save()
+    monkeypatch.setattr(shot.ShotProcessor, "_lights", lambda self, frame: [])  # nothing found, no sky
+
+    def mean_luminance(path, prim="/World/Avatar"):
+        opened = Usd.Stage.Open(str(path))
+        g = read_gaussian_prim(opened.GetPrimAtPath(prim), Usd.TimeCode(1))
+        lin = to_linear(np.clip(0.5 + sh3dgs.C0 * g.sh[:, 0, :].astype(np.float64), 0, None), "srgb")
+        w = g.opacities.astype(np.float64)
+        return float(w @ (lin @ np.array([0.2126, 0.7152, 0.0722])) / w.sum())
+
+    runs = {}
+    for keep in (True, False):
+        cfg = tmp_path / f"{keep}.json"
+        cfg.write_text(json.dumps({"keep_level_without_lights": keep}))
+        out = tmp_path / f"{keep}.lit.usdc"
+        assert main(["process", str(stage), "-o", str(out), "--frames", "1", "--json", "--config", str(cfg)]) == 0
+        runs[keep] = (out, json.loads(capsys.readouterr().out))
+    assert shot.NO_LIGHT_NOTE in runs[True][1]["warnings"] and shot.NO_LIGHT_NOTE not in runs[False][1]["warnings"]
+    before = mean_luminance(stage)
+    assert mean_luminance(runs[True][0]) == pytest.approx(before, rel=5e-3)  # half-precision output
+    assert mean_luminance(runs[False][0]) < 0.9 * before

@@ -48,6 +48,9 @@ class ProcessOptions:
     relight_q: float = 1.0
     relight_gamma: float = 1.0
     relight_t_max: float = 8.0
+    # a shot without any light keeps each relit prim's captured mean brightness (usd_gs.relight.avatar,
+    # "A shot without any light"); False: the probe's absolute level, however dark
+    keep_level_without_lights: bool = True
     color_space: str = "srgb"  # of the Gaussians' colours for relighting: 'srgb' (display-referred) | 'linear'
     self_shadow: bool = True  # a relit prim's own Gaussians shadow its direct light (DGSM, with the bias below)
     self_shadow_bias: float = 0.05  # metres toward the light for a relit prim's own shadow lookups

@@ -87,6 +87,10 @@ class _Clock:
         return now
 
 
+NO_LIGHT_NOTE = ("no light on the stage or in the capture: relit prims keep their captured mean brightness, "
+                 "shaded by the probe's directions only (author a UsdLux light for absolute relighting)")
+
+
 def default_output_path(input_path: str) -> str:
     """``<stem>.lit.usdc`` beside the input."""
     p = Path(input_path)
@@ -646,9 +650,12 @@ class ShotProcessor:
         each prim's probe is written."""
         relit = {}
         t = time.perf_counter()
+        keep = not lights and self.opts.keep_level_without_lights
+        if keep and NO_LIGHT_NOTE not in self.warnings:
+            self.warnings.append(NO_LIGHT_NOTE)
         for (path, job), pt in zip(jobs, transfers, strict=True):
             vis = self._visibility(path, lights, shadows)  # keyed by the shadow lights, not the calibrated copies
-            scale, probe = relight_factors(**job, visibility=vis, transfer=pt)
+            scale, probe = relight_factors(**job, visibility=vis, transfer=pt, keep_level=keep)
             relit[path] = scale
             t = self.clock.add("probe", t)
             self._write_probe(path, frame, job["centre"], probe, author, probe_dir)

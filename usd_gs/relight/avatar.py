@@ -40,6 +40,13 @@ Colours are decoded with ``opts.color_space`` ('srgb' default, 'linear') and re-
 result is returned as a per-channel factor on the prim's displayed DC colour
 (``usd_gs.colorspace.display_factor``), which the main job multiplies into every SH band.
 
+**A shot without any light** (none on the stage, none estimated, no dome): the light that lit the
+capture is not in it (a daylight capture of a closed set, lit from behind the camera), so the
+probe alone sees only what that light left on the surfaces, often a dark backdrop, and the
+absolute rule above would turn an avatar nearly black. The main job then keeps each relit prim's
+captured mean brightness (``keep_level``: the relit linear colours scaled to the captured ones'
+opacity-weighted mean luminance) and the probe shades it by direction and colour only.
+
 Both ``ShotProcessor`` and the ground truths (``usd_gs.evaluation.relight_groundtruth``,
 ``usd_gs.evaluation.outdoor_groundtruth``) call :func:`relight_factors`, so the measured accuracy
 is the main job's.
@@ -178,8 +185,8 @@ def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray,
 
 def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
                     dilation: float = PROBE_DILATION, lights=(), visibility=None,
-                    appearance: dict | None = None, transfer: ProbeTransfer | None = None, far=None
-                    ) -> tuple[np.ndarray, SHProbe]:
+                    appearance: dict | None = None, transfer: ProbeTransfer | None = None, far=None,
+                    keep_level: bool = False) -> tuple[np.ndarray, SHProbe]:
     """``(factor (N, 3) float32, probe)`` for the Gaussians ``g`` (world space) with unit outward
     ``normals`` (N, 3), lit by the scene ``everything`` where ``mask`` (bool, len
     ``everything.count``) is True (the caller leaves out the prim itself and the Gaussians of
@@ -190,6 +197,9 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     relight_t_max, relight_gamma, color_space); ``appearance``: None, or the prim's albedo / ZH
     fields (module docstring); ``transfer``: :func:`probe_transfer` of the same arguments when
     already computed (else it is computed here); ``far``: as for :func:`probe_transfer`.
+    ``keep_level``: scale the relit linear colours so that their opacity-weighted mean luminance
+    over the prim is the captured colours' (the main job's rule for a shot without any light, where
+    the capture's absolute light level is unknown: the probe then shades by direction only).
 
     ``factor``: per Gaussian and channel, the relit displayed colour over the captured one,
     gamma included (multiply it into every SH band). ``probe``: the fitted probe (linear radiance,
@@ -205,16 +215,36 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     c = dc_colors(g)
     if transfer.transfer is not None:  # ZH appearance
         col_lin = _zh_linear(g, appearance, transfer.transfer, lights, visibility, centre, gamma)
+        if keep_level:
+            col_lin = col_lin * _level_scale(g, to_linear(c, space), col_lin)
         out = from_linear(np.minimum(col_lin, t_max), space)
         return _ratio(out, c), probe
     k = np.asarray(transfer.scale, np.float64)
     if any(lt.kind != "dome" for lt in lights):
         k = k + direct_factors(lights, g.positions, normals, visibility) / np.pi
-    k = np.clip(gamma * k, 0.0, t_max)
-    if appearance is not None and "albedo" in appearance:
-        out = from_linear(np.asarray(appearance["albedo"], np.float64) * k, space)
+    k = gamma * k
+    albedo = None if appearance is None or "albedo" not in appearance else np.asarray(appearance["albedo"], np.float64)
+    if keep_level:
+        captured = to_linear(c, space)
+        k = k * _level_scale(g, captured, k * (captured if albedo is None else albedo))
+    k = np.clip(k, 0.0, t_max)
+    if albedo is not None:
+        out = from_linear(albedo * k, space)
         return _ratio(out, c), probe
     return display_factor(c, k, space).astype(np.float32), probe
+
+
+#: Rec. 709 luminance weights (linear RGB)
+_LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _level_scale(g, captured_lin: np.ndarray, relit_lin: np.ndarray) -> float:
+    """The factor that gives ``relit_lin`` (N, 3) the opacity-weighted mean luminance of
+    ``captured_lin`` (N, 3) over the Gaussians ``g`` (1 when the relit colours are black)."""
+    w = np.clip(np.asarray(g.opacities, np.float64), 0.0, 1.0)
+    a = float(w @ (np.clip(captured_lin, 0.0, None) @ _LUMA))
+    b = float(w @ (np.clip(relit_lin, 0.0, None) @ _LUMA))
+    return a / b if b > 1e-12 and a > 0.0 else 1.0
 
 
 def _ratio(out: np.ndarray, c: np.ndarray) -> np.ndarray:
