@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 COLOR_SPACES = ("srgb", "linear")
+#: Rec. 709 / sRGB luminance weights of linear RGB
+LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 def srgb_decode(c) -> np.ndarray:

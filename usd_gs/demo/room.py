@@ -28,14 +28,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from usd_gs import sh3dgs
+from usd_gs.colorspace import LUMA  # noqa: F401 (the room's luminance weights, read from here by its tests)
 from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
 
 PART_FLOOR, PART_WALL, PART_CEILING, PART_FURNITURE, PART_LAMP = 0, 1, 2, 3, 4
 PART_NAMES = {PART_FLOOR: "floor", PART_WALL: "wall", PART_CEILING: "ceiling",
               PART_FURNITURE: "furniture", PART_LAMP: "lamp"}
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
-"""Rec. 709 luminance weights for linear RGB."""
 
 
 @dataclass

@@ -62,7 +62,7 @@ from numba_kernels.cubemap_dirs import cube_face_directions, cube_face_solid_ang
 from numba_kernels.sh_real import eval_basis_rh_numpy
 from numba_kernels.zh_transfer import zh_diffuse_color
 from usd_gs import sh3dgs
-from usd_gs.colorspace import display_factor, from_linear, to_linear
+from usd_gs.colorspace import LUMA, display_factor, from_linear, to_linear
 from usd_gs.io import envmap
 from usd_gs.relight.direct import direct_factors, direct_irradiance, light_direction
 from usd_gs.relight.parallax import cube_texels, reprojected_probes
@@ -234,16 +234,12 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
     return display_factor(c, k, space).astype(np.float32), probe
 
 
-#: Rec. 709 luminance weights (linear RGB)
-_LUMA = np.array([0.2126, 0.7152, 0.0722])
-
-
 def _level_scale(g, captured_lin: np.ndarray, relit_lin: np.ndarray) -> float:
     """The factor that gives ``relit_lin`` (N, 3) the opacity-weighted mean luminance of
     ``captured_lin`` (N, 3) over the Gaussians ``g`` (1 when the relit colours are black)."""
     w = np.clip(np.asarray(g.opacities, np.float64), 0.0, 1.0)
-    a = float(w @ (np.clip(captured_lin, 0.0, None) @ _LUMA))
-    b = float(w @ (np.clip(relit_lin, 0.0, None) @ _LUMA))
+    a = float(w @ (np.clip(captured_lin, 0.0, None) @ LUMA))
+    b = float(w @ (np.clip(relit_lin, 0.0, None) @ LUMA))
     return a / b if b > 1e-12 and a > 0.0 else 1.0
 
 

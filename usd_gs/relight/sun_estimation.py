@@ -60,6 +60,7 @@ from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.grid_neighbours import nearest
 from numba_kernels.sun_shadow import transmittance_directions
+from usd_gs.colorspace import LUMA
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
 from usd_gs.io.envmap import latlong_directions, project_latlong_to_sh
@@ -67,7 +68,6 @@ from usd_gs.relight.light_estimation import estimate_lights
 from usd_gs.render.rasterize import render_cube_faces
 from usd_gs.shadows.dgsm import DGSMConfig, exact_transmittance, prepare_occluders
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 SH_C0 = 0.28209479177387814
 _AXES = {"X": 0, "Y": 1, "Z": 2}
 _DISTANCES = ("receiver_radius", "caster_radius", "ground_band", "ground_search", "emitter_radius", "floor_margin",
