@@ -131,6 +131,9 @@ def test_broken_cache_file_warns_and_changes_nothing(quick_demo, single, tmp_pat
     (res,) = s.results
     assert res.shot_cache["loaded"] == 0 and res.shot_cache["computed"] > 0
     assert any(str(cache) in w and "unreadable shot cache" in w for w in res.warnings)
+    # the run's summary carries the chunks' warnings (what `usdgs process --chunk-size` prints)
+    assert [w for w in s.as_dict()["warnings"] if "unreadable shot cache" in w] == [
+        w for w in res.warnings if "unreadable shot cache" in w]
     assert ShotCache(cache, "ignored").problem is None  # rewritten whole
     assert stage_differences(single, tmp_path / "b.usdc", [1.0, 2.0, 3.0]) == []
     assert Sdf.Layer.FindOrOpen(str(tmp_path / "b.usdc")) is not None

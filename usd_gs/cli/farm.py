@@ -47,6 +47,8 @@ def process_chunked(args, out: str, opts) -> int:
               f"{len(c['computed'])} computed, {len(c['skipped'])} already finished"
               + (f", {len(c['removed_stale'])} stale removed" if c["removed_stale"] else "")
               + (f"; {fps:.2f} frames/s" if fps else ""))
+        for w in summary.warnings:
+            print(f"warning: {w}")
         print(f"wrote {summary.output} (value clips over {summary.clips_dir})")
     return 0
 

@@ -54,6 +54,12 @@ class FarmSummary:
     lights: list | None
     timings: dict
     results: list = field(default_factory=list)
+    shot_warnings: list = field(default_factory=list)  # the shot-level step's (the light estimate's)
+
+    @property
+    def warnings(self) -> list[str]:
+        """The shot-level step's warnings, then every chunk's, each once, in order."""
+        return list(dict.fromkeys([*self.shot_warnings, *(w for r in self.results for w in r.warnings)]))
 
     def as_dict(self) -> dict:
         wall = self.timings.get("chunks", 0.0)
@@ -65,7 +71,7 @@ class FarmSummary:
                 "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
                 "frames_per_second": round(sum(len(r.frames) for r in self.results) / wall, 3) if wall else None,
                 "chunk_seconds": {r.name: round(r.seconds, 4) for r in self.results},
-                "shot_cache": {r.name: r.shot_cache for r in self.results}}
+                "shot_cache": {r.name: r.shot_cache for r in self.results}, "warnings": self.warnings}
 
 
 def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: str | None = None,
@@ -83,6 +89,7 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
     frames = shot.frames
     anchor = anchor_frame(shot.stage, frames)
     o_hash, i_hash = options_hash(opts, lights, anchor), input_hash(shot.stage)
+    shot_warnings = list(shot.warnings)
     del shot
     chunks = plan_chunks(frames, chunk_size)
     t = time.perf_counter()
@@ -115,4 +122,4 @@ def run_farm(input_path: str, output: str, options, chunk_size: int, clips_dir: 
     timings["assemble"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t0
     return FarmSummary(str(output), str(folder), name, frames, len(chunks), [c.name for c in todo],
-                       [c.name for c in done], removed, lights, timings, results)
+                       [c.name for c in done], removed, lights, timings, results, shot_warnings)
