@@ -8,7 +8,7 @@ import subprocess
 import sys
 import textwrap
 
-from package_process import child_env, python
+from package_process import PACKAGE_ROOT, child_env, python
 
 from usd_gs.pipeline import jit_warmup
 
@@ -77,13 +77,8 @@ def test_warm_up_process_imports_the_main_process_package(tmp_path):
     """Launched from a directory holding another copy of the package (a checkout beside an
     installed one), the warm-up must not import that copy: -P keeps the current directory off
     sys.path, and a package mismatch makes it exit without compiling."""
-    from pathlib import Path
-
-    import usd_gs
-
-    here = str(Path(usd_gs.__file__).resolve().parent.parent)  # the copy this test imported, absolute
     env = dict(os.environ, USDGS_JIT_WARMUP_PACKAGE=str(tmp_path / "elsewhere"), NUMBA_CACHE_DIR=str(tmp_path / "c"),
-               PYTHONPATH=here)
+               PYTHONPATH=PACKAGE_ROOT)  # the copy this test imported
     r = subprocess.run([sys.executable, "-P", "-m", "usd_gs.pipeline.jit_warmup", "relight"],
                        capture_output=True, text=True,
                        env=env, cwd=tmp_path)

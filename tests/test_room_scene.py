@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from usd_gs import sh3dgs
+from usd_gs.colorspace import LUMA
 from usd_gs.demo.room import (
-    LUMA,
     PART_CEILING,
     PART_FLOOR,
     PART_FURNITURE,

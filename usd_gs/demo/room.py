@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from usd_gs import sh3dgs
-from usd_gs.colorspace import LUMA  # noqa: F401 (the room's luminance weights, read from here by its tests)
 from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
 
 PART_FLOOR, PART_WALL, PART_CEILING, PART_FURNITURE, PART_LAMP = 0, 1, 2, 3, 4

@@ -42,7 +42,7 @@ from usd_gs.farm.chunks import PREFIX, entry_files_ok, input_hash, read_sidecar
 from usd_gs.io.atomic import atomic_output
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, file_format_args, read_gaussian_prim, save_stage_atomic
 from usd_gs.usd.output_author import SH_COEFFS, SH_COEFFS_HALF, TRANSMITTANCE
-from usd_gs.usd.output_layer import OutputLayer, _relative_asset_path
+from usd_gs.usd.output_layer import OutputLayer, _relative_asset_path, topology_layer_path
 from usd_gs.usd.stage import check_usd_output_path, open_stage
 
 SH_DEGREE = "radiance:sphericalHarmonicsDegree"
@@ -246,7 +246,7 @@ def assemble(folder, output, entries: list[dict] | None = None, allow_gaps: bool
     layer_paths = [e["path"] for e in entries]
     layers = [Sdf.Layer.FindOrOpen(p) for p in layer_paths]
     names = [Path(p).name for p in layer_paths]
-    topo_path = out.with_name(out.stem + ".topology.usdc")
+    topo_path = topology_layer_path(out)
     man_path = out.with_name(out.stem + ".manifest.usdc")
     _topology(topo_path, layer_paths, input_stage)
     filled = _manifest(man_path, layers, names, input_stage)

@@ -156,9 +156,9 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float) -> tup
     for bit, with indices mapped back; a scene far larger than the ROI is not scanned again. A
     non-finite value anywhere keeps the whole scene (the kernel names the element)."""
     from numba_kernels.capsule import within_capsule
-    from usd_gs.usd.gaussian_layer import _all_finite
+    from usd_gs.usd.gaussian_layer import all_finite
 
-    if scene.count < 2 or not all(_all_finite(a) for a in (scene.positions, scene.opacities, scene.sh)):
+    if scene.count < 2 or not all(all_finite(a) for a in (scene.positions, scene.opacities, scene.sh)):
         return scene, None
     # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
     near = np.flatnonzero(within_capsule(scene.positions, centre, centre, float(roi_radius)))

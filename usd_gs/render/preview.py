@@ -37,6 +37,7 @@ from usd_gs.gaussians import GaussianSet
 from usd_gs.render import rasterize as _render
 from usd_gs.render.camera import Camera
 from usd_gs.usd.frames import as_time
+from usd_gs.usd.output_layer import topology_layer_path
 
 DEFAULT_WIDTH = 960
 FALLBACK_ASPECT = 16.0 / 9.0
@@ -245,7 +246,7 @@ def input_stage_path(stage) -> str:
     layer = stage.GetRootLayer()
     subs = list(layer.subLayerPaths)
     if layer.realPath:
-        own = os.path.splitext(os.path.basename(layer.realPath))[0] + ".topology.usdc"
+        own = topology_layer_path(layer.realPath).name
         subs = [s for s in subs if os.path.basename(s) != own] or subs
     if not subs:
         raise UserError(f"{stage_label(stage)}: --compare needs a processed stage (the output of 'usdgs process', "

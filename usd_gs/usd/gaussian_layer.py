@@ -62,7 +62,7 @@ _EXTRA_TYPES = {
 
 
 # --------------------------------------------------------------------------- checks
-def _all_finite(arr: np.ndarray) -> bool:
+def all_finite(arr: np.ndarray) -> bool:
     """True when every element of the float array is finite. One pass without an array-sized
     temporary: a NaN or an infinity makes the sum NaN or infinite, so a finite sum proves every
     element finite; a sum that overflows (or a non-finite element) is decided element by element."""
@@ -76,7 +76,7 @@ def _all_finite(arr: np.ndarray) -> bool:
 
 
 def _check_finite(arr: np.ndarray, where: str, name: str) -> None:
-    if _all_finite(arr):  # fast path
+    if all_finite(arr):  # fast path
         return
     bad = ~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1)
     if bad.any():

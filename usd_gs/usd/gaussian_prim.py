@@ -50,8 +50,8 @@ from usd_gs.usd.gaussian_layer import (  # noqa: F401 - the write side's names, 
     SH_COEFFS,
     SH_DEGREE,
     SH_DEGREE_FALLBACK,
-    _all_finite,
     _check_finite,
+    all_finite,
     author_gaussian_spec,
     check_gaussians,
     check_precision,
@@ -290,7 +290,7 @@ def _check_transformed(gs: GaussianSet, path: str, tc: Usd.TimeCode) -> Gaussian
     at = "" if tc.IsDefault() or tc.IsEarliestTime() else f" at time {tc.GetValue():g}"
     for name in ("positions", "scales", "orientations"):
         arr = getattr(gs, name)
-        if _all_finite(arr):
+        if all_finite(arr):
             continue
         bad = ~np.isfinite(arr).all(axis=1) if len(arr) else np.zeros(0, bool)
         if bad.any():

@@ -28,6 +28,12 @@ _COPIED_FIELDS = ("upAxis", "metersPerUnit", "timeCodesPerSecond", "framesPerSec
                   "endTimeCode", "documentation")
 
 
+def topology_layer_path(output) -> Path:
+    """``<stem>.topology.usdc`` beside a chunked run's stitched output ``output`` (``usd_gs.farm.clips``)."""
+    output = Path(output)
+    return output.with_name(output.stem + ".topology.usdc")
+
+
 def _same_file(a: Path, b: Path) -> bool:
     if os.path.realpath(a) == os.path.realpath(b):
         return True

@@ -8,19 +8,18 @@ import os
 from usd_gs.errors import InputFormatError, UserError
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
-#: names of 3DGS capture files (``usd_gs.io.formats`` reads them): given where a stage is expected,
-#: the error says how to bring them in
-CAPTURE_SUFFIXES = (".ply", ".splat", ".spz", ".sog", "meta.json")
 
 
 def _capture_hint(path: str) -> str | None:
-    """The advice for a 3DGS capture (file or SOG folder) given where a USD stage is expected, else None."""
-    name = os.path.basename(os.path.normpath(path)).lower()
-    sog_folder = os.path.isdir(path) and any(os.path.isfile(os.path.join(path, m)) for m in ("meta.json",
-                                                                                             "lod-meta.json"))
-    if not (sog_folder or name.endswith(CAPTURE_SUFFIXES)):
+    """The advice for a 3DGS capture (a file or SOG folder that ``usd_gs.io.formats`` reads) given
+    where a USD stage is expected, else None (asked only once the path failed to open as a stage)."""
+    from usd_gs.io.formats import capture_kind
+
+    try:
+        capture_kind(path)
+    except UserError:
         return None
-    stem = name.split(".")[0] or "capture"
+    stem = os.path.basename(os.path.normpath(path)).split(".")[0] or "capture"
     return (f"{path}: is a 3DGS capture, not a USD stage; convert it first: usdgs import {path} -o {stem}.usdc "
             f"(add --role avatar or --role object for a character or a prop), then sublayer or reference it "
             f"from your shot stage")
@@ -54,18 +53,16 @@ def open_stage(path: str, allow_missing: bool | None = None):
 
     if not os.path.exists(path):
         raise InputFormatError(f"{path}: no such file")
-    hint = _capture_hint(path)
-    if hint:
-        raise InputFormatError(hint)
     if os.path.isdir(path):
-        raise InputFormatError(f"{path}: is a directory, not a USD stage")
+        raise InputFormatError(_capture_hint(path) or f"{path}: is a directory, not a USD stage")
     try:
         stage = Usd.Stage.Open(path)
     except Tf.ErrorException as exc:
         msg = " ".join(str(exc).split())
-        raise InputFormatError(f"{path}: cannot be opened as a USD stage ({msg[:300]})") from None
+        raise InputFormatError(_capture_hint(path) or f"{path}: cannot be opened as a USD stage ({msg[:300]})") \
+            from None
     if stage is None:
-        raise InputFormatError(f"{path}: cannot be opened as a USD stage")
+        raise InputFormatError(_capture_hint(path) or f"{path}: cannot be opened as a USD stage")
     if not (_ALLOW_MISSING[0] if allow_missing is None else allow_missing):
         missing = missing_layers(stage)
         if missing:
