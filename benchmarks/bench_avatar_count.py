@@ -12,6 +12,7 @@ mean over frames 2.. (frame 1 apart: it builds the shot's caches) of shadows + r
 ratio to N = 1, and the whole job's s/frame.
 
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py [--frames 1-6] [--counts 1,2,4,8]
+    PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py --tasks --frames 1-4 --counts 1,4
 """
 
 from __future__ import annotations
@@ -92,6 +93,52 @@ def run(stage: Path, out: Path, frames: str, config: Path | None = None) -> dict
     return summary
 
 
+def run_tasks_serial(stage: Path, out: Path, frames: str) -> dict:
+    """One in-process ``usdgs process`` on one thread with the shadow pass's tasks run one after the
+    other: ``{task function name: s/frame}`` over frames 2.. (each task's own time: moving-caster
+    DGSMs ``_caster_task``, the static scene's shadows on moving receivers ``_scene_task``, the
+    probe renders and transfers ``probe_transfer``), plus ``FRAME``, the whole frame."""
+    import numba
+
+    import usd_gs.pipeline.shot as shot
+    from usd_gs.cli import main
+
+    seconds: dict = {}
+    frame_no = [0]
+
+    def serial(tasks):
+        out = []
+        for task in tasks:
+            t = time.perf_counter()
+            out.append(task())
+            if frame_no[0] > 1:
+                name = getattr(getattr(task, "func", task), "__name__", "other")
+                seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t
+        return out
+
+    plain_run, plain_frame, threads = shot.run_tasks, shot.ShotProcessor._frame, numba.get_num_threads()
+
+    def frame(self, *a, **k):
+        frame_no[0] += 1
+        t = time.perf_counter()
+        try:
+            return plain_frame(self, *a, **k)
+        finally:
+            if frame_no[0] > 1:
+                seconds["FRAME"] = seconds.get("FRAME", 0.0) + time.perf_counter() - t
+
+    shot.run_tasks, shot.ShotProcessor._frame = serial, frame
+    numba.set_num_threads(1)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert main(["process", str(stage), "-o", str(out), "--frames", frames, "-q"]) == 0
+    finally:
+        shot.run_tasks, shot.ShotProcessor._frame = plain_run, plain_frame
+        numba.set_num_threads(threads)
+    steady = max(frame_no[0] - 1, 1)
+    return {k: v / steady for k, v in seconds.items() if k != "<lambda>"}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", default="1-6")
@@ -101,9 +148,18 @@ def main() -> None:
                     help="also run this many avatars with every moving receiver Gaussian looking up the other "
                          "avatars' shadows (moving_receiver_samples 0) and print the relit colour difference "
                          "(0: skip)")
+    ap.add_argument("--tasks", action="store_true",
+                    help="instead: each shadow-pass task timed on one thread, one after the other (s/frame over "
+                         "frames 2..), per avatar count")
     a = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_avatars_"))
     counts = [int(c) for c in a.counts.split(",")]
+    if a.tasks:
+        print(f"frames {a.frames}; one thread, tasks one after the other; s/frame over frames 2..")
+        for n in counts:
+            t = run_tasks_serial(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.tasks.lit.usdc", a.frames)
+            print(f"{n} avatar(s): " + ", ".join(f"{k} {v:.3f}" for k, v in sorted(t.items(), key=lambda kv: -kv[1])))
+        return
     rows = []
     for n in counts:
         s = run(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.lit.usdc", a.frames)
