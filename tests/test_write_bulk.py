@@ -171,14 +171,14 @@ def test_vt_writable_view_is_the_vt_arrays_value():
     ((7, 2, np.nan), False), ((9, 0, np.inf), False), ((11, 1, -np.inf), False),
 ])
 def test_all_finite_without_a_temporary(bad, finite):
-    from usd_gs.usd.gaussian_layer import _all_finite
+    from usd_gs.usd.gaussian_layer import all_finite
 
     a = np.random.default_rng(1).normal(size=(50_000, 3)).astype(np.float32)
     if bad is not None:
         a[bad[0], bad[1]] = bad[2]
         if np.isfinite(bad[2]):
             a[bad[0] + 1] = bad[2]  # several huge values: the float32 sum overflows
-    assert _all_finite(a) is finite and finite == bool(np.isfinite(a).all())
+    assert all_finite(a) is finite and finite == bool(np.isfinite(a).all())
     both = a.copy()
     both[0, 0], both[1, 0] = np.inf, -np.inf  # inf + -inf: a NaN sum
-    assert not _all_finite(both)
+    assert not all_finite(both)
