@@ -73,6 +73,8 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 SUPPORT_Q = 9.0  # 3 sigma
+#: the square root of the largest support cut ``_support_q`` returns
+SQRT_Q_MAX = math.sqrt(SUPPORT_Q * (1.0 + 1e-5))
 DEFAULT_DILATION = 0.3
 DEFAULT_GUARD = 1.3
 TILE = 16
@@ -224,9 +226,10 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     guard band, as built by ``rasterize``.
 
     A camera the splat misses by far (the other faces of a cube render, most of a wide scene) is
-    rejected first without a division: with ``e <= sqrt(q) (smax A / z + sqrt(dilation))`` (the
+    rejected first without a division and without the support's log: with ``e <= sqrt(q) (smax A /
+    z + sqrt(dilation)) <= SQRT_Q_MAX (...)`` (the
     half-extent bound below, ``sqrt(a + b) <= sqrt(a) + sqrt(b)``), the centre's pixel ``u = fx x
-    / z + cx`` lies left of the image by more than ``e`` when ``fx x + (cx - 0.5) z + sqrt(q) (smax
+    / z + cx`` lies left of the image by more than ``e`` when ``fx x + (cx - 0.5) z + SQRT_Q_MAX (smax
     A + sqrt(dilation) z) < 0`` (likewise right, above, below); the test keeps a relative margin
     of 1e-3 and 1e-3 px, so it rejects only what the full test rejects.
     """
@@ -247,36 +250,32 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
         px = np.float64(positions[g, 0])
         py = np.float64(positions[g, 1])
         pz = np.float64(positions[g, 2])
+        smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])), abs(np.float64(scales[g, 2]))))
         bits = 0
         qcut = -1.0
-        smax = 0.0
-        sq = 0.0
         for k in range(ncam):
-            c = cams[k]
-            z = c[6] * px + c[7] * py + c[8] * pz + c[11]
-            if not (z > c[16] and z <= c[17]):
+            z = cams[k, 6] * px + cams[k, 7] * py + cams[k, 8] * pz + cams[k, 11]
+            if not (z > cams[k, 16] and z <= cams[k, 17]):
                 continue
-            x = c[0] * px + c[1] * py + c[2] * pz + c[9]
-            y = c[3] * px + c[4] * py + c[5] * pz + c[10]
-            if qcut < 0.0:
-                qcut = _support_q(op)
-                smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
-                                                              abs(np.float64(scales[g, 2]))))
-                sq = math.sqrt(qcut)
-            # division-free reject (docstring): z * (e bound + margin), then each side of the image
-            ez = (sq * (smax * c[22] + sdil * z)) * 1.001 + 1e-3 * z
-            ux = c[12] * x + c[14] * z
-            vy = c[13] * y + c[15] * z
+            x = cams[k, 0] * px + cams[k, 1] * py + cams[k, 2] * pz + cams[k, 9]
+            y = cams[k, 3] * px + cams[k, 4] * py + cams[k, 5] * pz + cams[k, 10]
+            # division-free reject (docstring): z * (e bound + margin), then each side of the image; the
+            # bound takes the largest support SQRT_Q_MAX >= sqrt(q) (the log only for what passes)
+            ez = (SQRT_Q_MAX * (smax * cams[k, 22] + sdil * z)) * 1.001 + 1e-3 * z
+            ux = cams[k, 12] * x + cams[k, 14] * z
+            vy = cams[k, 13] * y + cams[k, 15] * z
             if (ux + ez < 0.5 * z or ux - ez > (width - 0.5) * z or vy + ez < 0.5 * z
                     or vy - ez > (height - 0.5) * z):
                 continue
+            if qcut < 0.0:
+                qcut = _support_q(op)
             iz = 1.0 / z
-            u = c[12] * x * iz + c[14]
-            v = c[13] * y * iz + c[15]
+            u = cams[k, 12] * x * iz + cams[k, 14]
+            v = cams[k, 13] * y * iz + cams[k, 15]
             # lambda_max(J V Sigma V^T J^T) <= smax^2 ||J||_F^2 bounds the bounding-box half-extent
-            tx = min(c[19], max(c[18], x * iz))
-            ty = min(c[21], max(c[20], y * iz))
-            jf2 = (c[12] * iz) ** 2 * (1.0 + tx * tx) + (c[13] * iz) ** 2 * (1.0 + ty * ty)
+            tx = min(cams[k, 19], max(cams[k, 18], x * iz))
+            ty = min(cams[k, 21], max(cams[k, 20], y * iz))
+            jf2 = (cams[k, 12] * iz) ** 2 * (1.0 + tx * tx) + (cams[k, 13] * iz) ** 2 * (1.0 + ty * ty)
             eb = math.sqrt(qcut * (smax * smax * jf2 + dilation)) * (1.0 + 1e-6) + 1e-6
             j0, j1 = _pixel_range(u, eb, width)
             i0, i1 = _pixel_range(v, eb, height)
