@@ -82,3 +82,71 @@ def within_capsule(positions, a, b, radius: float, extra=None) -> np.ndarray:
     out = np.zeros(n, np.bool_)
     run_chunks(_within, n, p, ex, a64, u, length, float(radius), out, min_chunk=65536)
     return out
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _block_spheres(b0, b1, p, starts, centres, radii):
+    for b in range(b0, b1):
+        lo0 = lo1 = lo2 = math.inf
+        hi0 = hi1 = hi2 = -math.inf
+        for m in range(starts[b], starts[b + 1]):
+            x, y, z = np.float64(p[m, 0]), np.float64(p[m, 1]), np.float64(p[m, 2])
+            lo0, hi0 = min(lo0, x), max(hi0, x)
+            lo1, hi1 = min(lo1, y), max(hi1, y)
+            lo2, hi2 = min(lo2, z), max(hi2, z)
+        if starts[b + 1] <= starts[b]:
+            centres[b, 0] = centres[b, 1] = centres[b, 2] = 0.0
+            radii[b] = -1.0  # empty: never straddles
+            continue
+        centres[b, 0], centres[b, 1], centres[b, 2] = 0.5 * (lo0 + hi0), 0.5 * (lo1 + hi1), 0.5 * (lo2 + hi2)
+        h0, h1, h2 = 0.5 * (hi0 - lo0), 0.5 * (hi1 - lo1), 0.5 * (hi2 - lo2)
+        # half the box diagonal, rounded up: every point of the block lies within it of the centre
+        radii[b] = math.sqrt(h0 * h0 + h1 * h1 + h2 * h2) * (1.0 + 1e-12)
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _within_ball_blocks(b0, b1, p, starts, centres, radii, a, radius, out):
+    zero = np.zeros(3)
+    r2 = radius * radius
+    for b in range(b0, b1):
+        s, e = starts[b], starts[b + 1]
+        if e <= s:
+            continue
+        dx, dy, dz = centres[b, 0] - a[0], centres[b, 1] - a[1], centres[b, 2] - a[2]
+        dc = math.sqrt(dx * dx + dy * dy + dz * dz)
+        tol = 1e-9 * (radius + dc + radii[b])  # far above the rounding of the per-point test
+        if dc + radii[b] < radius - tol:  # the whole block inside
+            out[s:e] = True
+        elif dc - radii[b] > radius + tol:  # the whole block outside
+            out[s:e] = False
+        else:
+            for m in range(s, e):
+                out[m] = _distance2(p, m, a, zero, 0.0) <= r2
+
+
+def block_spheres(positions, starts) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding spheres of contiguous blocks of points: ``positions`` (N, 3), ``starts`` (B+1,)
+    int64 increasing block bounds (block b is rows ``starts[b]:starts[b+1]``). Returns ``(centres
+    (B, 3), radii (B,))`` float64: the centre of each block's box and half its diagonal (-1 for an
+    empty block), an upper bound on every point's distance to the centre."""
+    p, _, _, _ = _segment(positions, np.zeros(3), np.zeros(3))
+    st = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    nb = max(st.size - 1, 0)
+    centres, radii = np.zeros((nb, 3)), np.full(nb, -1.0)
+    run_chunks(_block_spheres, nb, p, st, centres, radii, min_chunk=8)
+    return centres, radii
+
+
+def within_ball_blocks(positions, starts, spheres, centre, radius: float) -> np.ndarray:
+    """``within_capsule(positions, centre, centre, radius)`` bit for bit, with blocks of points
+    (``starts``, ``spheres`` as :func:`block_spheres` gives them) that lie wholly inside or outside
+    the ball decided at once: a block's own test is made only where its sphere straddles the
+    ball's boundary (by more than a relative 1e-9, far above the rounding of the per-point test).
+    Rows outside every block (before ``starts[0]`` or from ``starts[-1]`` on) are False."""
+    p, a64, _, _ = _segment(positions, centre, centre)
+    st = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    centres, radii = spheres
+    out = np.zeros(p.shape[0], np.bool_)
+    run_chunks(_within_ball_blocks, max(st.size - 1, 0), p, st, np.ascontiguousarray(centres, np.float64),
+               np.ascontiguousarray(radii, np.float64), a64, float(radius), out, min_chunk=8)
+    return out

@@ -9,15 +9,19 @@ import math
 import numpy as np
 from numba import njit
 
+from .jit_options import threaded
+from .thread_chunks import run_chunks
+
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
-def _extent_kernel(positions, orientations, scales, n_sigma, big, out):
+@njit(cache=True, fastmath=False, inline="always")
+def _extent_rows(positions, orientations, scales, start, stop, n_sigma, big, out):
+    """The box of rows ``start:stop`` into ``out`` (2, 3); False where some row's box is not finite."""
     lo0 = lo1 = lo2 = math.inf
     hi0 = hi1 = hi2 = -math.inf
     ok = True
-    for i in range(positions.shape[0]):
+    for i in range(start, stop):
         w = np.float64(orientations[i, 0])
         x = np.float64(orientations[i, 1])
         y = np.float64(orientations[i, 2])
@@ -63,6 +67,17 @@ def _extent_kernel(positions, orientations, scales, n_sigma, big, out):
     return ok
 
 
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
+def _extent_kernel(positions, orientations, scales, n_sigma, big, out):
+    return _extent_rows(positions, orientations, scales, 0, positions.shape[0], n_sigma, big, out)
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _block_extents(b0, b1, positions, orientations, scales, starts, n_sigma, big, out, ok):
+    for b in range(b0, b1):
+        ok[b] = _extent_rows(positions, orientations, scales, starts[b], starts[b + 1], n_sigma, big, out[b])
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     v = a.view()
     v.flags.writeable = False  # one specialisation whether or not the caller's array is read-only
@@ -82,3 +97,19 @@ def gaussian_extent(positions: np.ndarray, orientations: np.ndarray, scales: np.
     ok = _extent_kernel(_readonly(positions), _readonly(orientations), _readonly(scales), float(n_sigma),
                         _FLOAT32_MAX, out)
     return out if ok else None
+
+
+def block_extents(positions: np.ndarray, orientations: np.ndarray, scales: np.ndarray, starts,
+                  n_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`gaussian_extent` of each block of rows ``starts[b]:starts[b+1]`` (``starts`` (B+1,)
+    increasing), the blocks in threads: ``(boxes (B, 2, 3) float64, ok (B,) bool)``, the same bits
+    as :func:`gaussian_extent` on each block's rows; ``ok`` False where it would return None
+    (that block's box is then undefined), and for an empty block (box +-inf)."""
+    st = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    nb = max(st.size - 1, 0)
+    out = np.empty((nb, 2, 3), np.float64)
+    ok = np.zeros(nb, np.bool_)
+    run_chunks(_block_extents, nb, _readonly(positions), _readonly(orientations), _readonly(scales), st,
+               float(n_sigma), _FLOAT32_MAX, out, ok)
+    ok &= np.diff(st) > 0
+    return out, ok

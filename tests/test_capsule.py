@@ -63,3 +63,36 @@ def test_scaled_reach_is_the_largest_scale_times_the_factor():
     assert within_capsule_scaled(one, a, b, 0.5, s, 2.0).tolist() == [False]  # 0.5 + 0.4 < 1
     assert within_capsule_scaled(np.zeros((0, 3), np.float32), a, b, 1.0, np.zeros((0, 3), np.float32),
                                  8.0).shape == (0,)
+
+
+def test_ball_blocks_equal_the_per_point_test_bit_for_bit():
+    """within_ball_blocks decides whole blocks inside or outside the ball and tests only the
+    straddling ones point by point: the same booleans as within_capsule, for blocks wholly inside,
+    wholly outside, straddling, empty and one block spread over everything, and for points placed
+    exactly on the boundary (where a wrong block decision would show)."""
+    from numba_kernels.capsule import block_spheres, within_ball_blocks
+
+    rng = np.random.default_rng(11)
+    centres = rng.uniform(-20, 20, (60, 3))
+    clusters = [c + rng.normal(0, 0.4, (int(rng.integers(1, 3000)), 3)) for c in centres]
+    scattered = rng.uniform(-25, 25, (5000, 3))  # one block whose sphere holds everything
+    centre = np.array([1.5, -2.0, 0.5])
+    on_edge = centre + 7.0 * np.array([[1.0, 0, 0], [0, -1.0, 0], [0.6, 0.8, 0]])  # |p - c| == 7 in float64
+    parts = [*clusters, np.zeros((0, 3)), scattered, on_edge]
+    p = np.concatenate(parts).astype(np.float32)
+    starts = np.concatenate([[0], np.cumsum([len(x) for x in parts])]).astype(np.int64)
+    spheres = block_spheres(p, starts)
+    assert spheres[1][len(clusters)] == -1.0  # the empty block
+    for b in range(len(parts)):
+        rows = p[starts[b]:starts[b + 1]].astype(np.float64)
+        if len(rows):
+            assert np.linalg.norm(rows - spheres[0][b], axis=1).max() <= spheres[1][b]
+    decided = 0
+    for radius in (0.5, 7.0, 7.0 * (1 + 1e-7), 12.0, 40.0):
+        got = within_ball_blocks(p, starts, spheres, centre, radius)
+        assert np.array_equal(got, within_capsule(p, centre, centre, radius))
+        dc = np.linalg.norm(spheres[0] - centre, axis=1)
+        decided += int(np.sum((dc + spheres[1] < radius) | (dc - spheres[1] > radius)))
+    assert decided > 100  # most blocks were decided whole
+    # rows outside the blocks are False
+    assert not within_ball_blocks(p, starts[:2], spheres, centre, 1e3)[starts[1]:].any()

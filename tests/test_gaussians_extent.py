@@ -136,3 +136,25 @@ def test_row_blocked_matmul_equals_one_matmul():
         assert got.shape == want.shape and np.all(np.abs(got - want) <= bound)
         if n <= _MATMUL_ROWS:  # one block: the same call
             assert got.tobytes() == want.tobytes()
+
+
+def test_block_extents_equal_the_extent_of_each_block():
+    """numba_kernels.extent.block_extents (the prims of a receiver set in threads, used for the
+    prim spheres of the shadow culling): each block's box the same bits as gaussian_extent on its
+    rows; an empty block and a block with a non-finite box flagged not ok."""
+    from numba_kernels.extent import block_extents
+
+    rng = np.random.default_rng(3)
+    n = 40_000
+    pos = rng.normal(0, 5, (n, 3)).astype(np.float32)
+    quat = rng.normal(size=(n, 4)).astype(np.float32)
+    quat[7] = 0.0  # a zero quaternion counts as the identity
+    scales = rng.lognormal(-3, 1, (n, 3)).astype(np.float32)
+    scales[30_001] = 2e38  # its 3-sigma box overflows float32
+    starts = np.array([0, 9, 9, 12_345, 30_000, 30_002, n], np.int64)
+    boxes, ok = block_extents(pos, quat, scales, starts, 3.0)
+    assert ok.tolist() == [True, False, True, True, False, True]
+    for b in np.flatnonzero(ok):
+        a, e = starts[b], starts[b + 1]
+        assert np.array_equal(boxes[b], gaussian_extent(pos[a:e], quat[a:e], scales[a:e], 3.0))
+    assert gaussian_extent(pos[30_000:30_002], quat[30_000:30_002], scales[30_000:30_002], 3.0) is None

@@ -37,10 +37,11 @@ from numba_kernels.normals import gaussian_normals, local_normals_to_world, norm
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.far_field import FarLayers, static_blocks
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
-from usd_gs.shadows.shot import Receivers, receiver_points, shared_transmittance
+from usd_gs.shadows.shot import Receivers, prim_spheres, receiver_points, shared_transmittance
 from usd_gs.shadows.static_scene import StaticSceneAtlas
 from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.lux import ShotLight
@@ -193,6 +194,8 @@ def warm_up(groups=GROUPS) -> None:
                                        ProbeBlend.build(avatar.positions, opts.probe_points), opts)
         scale_sh(avatar.sh, opts.relight_gamma * scale)
         probe.to_latlong(*opts.probe_texture)
+        # the far field's ball tests over the static part (FarLayers.clear, block by block)
+        FarLayers(blocks=static_blocks([(0, scene.count)])).clear(everything.positions[:scene.count], centre, 0.5, 1.0)
         _mark("relight")
     if "shadows" in groups:
         out = np.ones((4, atlas.K), np.float32)
@@ -201,6 +204,7 @@ def warm_up(groups=GROUPS) -> None:
                                      np.zeros(4, np.int64), np.zeros(4, np.int64))
         centre_cfg = replace(opts.dgsm, sampling="center")
         recv = Receivers.build([("/scene", scene)])
+        prim_spheres(recv, opts.dgsm.k_sigma)  # the static receivers' bounding spheres, once per shot
         drecv = Receivers.build([("/avatar", avatar)])
         part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
         keep = ~within_capsule(scene.positions, light.position, light.position, opts.emitter_radius)  # _emitter_keep

@@ -47,7 +47,7 @@ from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.relight.appearance import read_appearance
 from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
-from usd_gs.relight.far_field import KEEP, FarField, FarLayers
+from usd_gs.relight.far_field import KEEP, FarField, FarLayers, static_blocks
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.sun_estimation import up_vector
@@ -1025,7 +1025,9 @@ class ShotProcessor:
         if far is None or far.static_count != static_count:
             layers = self._far_fields.get(("layers", static_count))
             if layers is None:  # one store per static part, shared by the relit prims (and a farm run's chunks)
-                layers = FarLayers(KEEP * len(self._relit_paths), backing=self.shot_cache)
+                bounds = sorted(spans[p] for p in self.static if p in spans)
+                layers = FarLayers(KEEP * len(self._relit_paths), backing=self.shot_cache,
+                                   blocks=static_blocks(bounds) if bounds and bounds[0][0] == 0 else None)
                 self._far_fields[("layers", static_count)] = layers
             far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count, layers)
         return far

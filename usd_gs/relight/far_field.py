@@ -38,13 +38,27 @@ import threading
 
 import numpy as np
 
-from numba_kernels.capsule import within_capsule
+from numba_kernels.capsule import block_spheres, within_ball_blocks, within_capsule
 from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_faces
 
 #: far layers kept per relit prim (a prim that moves back and forth between two cells reuses both)
 KEEP = 2
 #: grid levels tried for a far layer (module docstring): pitch and clearance double per level
 LEVELS = 3
+#: the static part's blocks for the ball tests hold at most this many Gaussians (a larger prim is split)
+BLOCK = 65536
+
+
+def static_blocks(bounds) -> np.ndarray:
+    """(B+1,) int64 block starts over a shot buffer's static part from its prims' ``bounds``
+    (``[(start, end)]`` in buffer order, contiguous from 0): each prim one block, split into runs of
+    at most :data:`BLOCK` Gaussians (a capture's points are near each other in storage order more
+    often than not; where they are not, a block is merely tested point by point)."""
+    cuts = [0]
+    for a, b in bounds:
+        cuts.extend(range(int(a) + BLOCK, int(b), BLOCK))
+        cuts.append(int(b))
+    return np.unique(np.asarray(cuts, np.int64))
 
 
 def composite_faces(near: tuple, far: tuple) -> tuple:
@@ -74,11 +88,17 @@ class FarLayers:
     ``backing``: None, or a store that outlives the process (a farm run's shot cache,
     ``usd_gs.pipeline.shot_cache.ShotCache``: ``get(*key)`` -> tuple of arrays or None,
     ``put(key, arrays)``): a layer missing here is looked up there before it is rendered, and a
-    rendered layer with a far part is stored there (keys of str, int and float only)."""
+    rendered layer with a far part is stored there (keys of str, int and float only).
 
-    def __init__(self, keep: int = KEEP, backing=None):
+    ``blocks``: None, or :func:`static_blocks` of the static part: the ball tests over the static
+    Gaussians (:meth:`within`, :meth:`clear`) then decide whole blocks that lie inside or outside a
+    ball at once (the same values; a far scene of many bricks is not tested point by point)."""
+
+    def __init__(self, keep: int = KEEP, backing=None, blocks=None):
         self.keep = max(1, int(keep))
         self.backing = backing
+        self.blocks = None if blocks is None else np.asarray(blocks, np.int64)
+        self._spheres = None
         self._lock = threading.Lock()
         self._layers: list = []  # [(key, (near indices or None, faces or None))], most recent first
         self._clear: dict = {}
@@ -104,15 +124,27 @@ class FarLayers:
         if self.backing is not None and not keep_only and value[1] is not None:
             self.backing.put(("far layer", *key), (value[0], *value[1]))
 
+    def within(self, static_positions: np.ndarray, centre, radius: float) -> np.ndarray:
+        """(N,) bool: the static Gaussian centres ``static_positions`` (N, 3) (the static part, the
+        same every call) within ``radius`` of ``centre``: ``within_capsule``'s values, block by block
+        where the store has ``blocks`` covering them."""
+        if self.blocks is None or self.blocks[-1] != len(static_positions):
+            return within_capsule(static_positions, centre, centre, radius)
+        with self._lock:
+            if self._spheres is None:
+                self._spheres = block_spheres(static_positions, self.blocks)
+            spheres = self._spheres
+        return within_ball_blocks(static_positions, self.blocks, spheres, centre, radius)
+
     def clear(self, static_positions: np.ndarray, anchor: np.ndarray, inner: float, outer: float) -> bool:
         """True when no static Gaussian centre lies farther than ``inner`` and within ``outer`` of
         ``anchor`` (cached per anchor and radii)."""
         key = (tuple(anchor), float(inner), float(outer))
         with self._lock:
             hit = self._clear.get(key)
-        if hit is None:  # (the inner ball lies in the outer one: test its candidates only)
-            ring = np.flatnonzero(within_capsule(static_positions, anchor, anchor, outer))
-            hit = bool(within_capsule(static_positions[ring], anchor, anchor, inner).all())
+        if hit is None:
+            hit = not bool(np.any(self.within(static_positions, anchor, outer)
+                                  & ~self.within(static_positions, anchor, inner)))
             with self._lock:
                 self._clear[key] = hit
         return hit
@@ -163,7 +195,7 @@ class FarField:
                _digest(mask[:s]))
         hit = self._store.get(key)
         if hit is None:
-            beyond = ~within_capsule(static, a, a, self.radius)
+            beyond = ~self._store.within(static, a, self.radius)
             far = np.flatnonzero(beyond & mask[:s])
             faces = near = None
             if far.size:
