@@ -392,10 +392,11 @@ class ShotProcessor:
         cfg = self.dgsm
         packed = {q: prepare_occluders(sets[q], cfg, self._pack_buffers(q, "cast", sets[q].count))
                   for q in self._casters_dyn} if lights else {}
-        bound = {q: occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
-        # moving receivers: prim-level culling against each caster's beam, as for the bricks
-        dspheres = {p: bound[p] if p in bound else occluder_sphere(sets[p], cfg.k_sigma)
-                    for p in self._dyn_recv_paths if sets[p].count} if packed else {}
+        # bounding spheres of the moving prims (one threaded pass over the receivers; the same
+        # values as occluder_sphere), for prim-level culling against each caster's beam, as for the bricks
+        rspheres = prim_spheres(drecv, cfg.k_sigma) if packed else {}
+        bound = {q: rspheres[q] if q in rspheres else occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
+        dspheres = {p: rspheres[p] for p in self._dyn_recv_paths if sets[p].count} if packed else {}
         movers = _MovingCasters(packed, bound, dspheres)
         self._self_vis = {}  # this frame's self-shadowing of relit prims: (prim, id(light)) -> (N_moving,)
         s_light, d_light, touched = [], [], []
@@ -419,8 +420,13 @@ class ShotProcessor:
         if u.size:
             per = [ts[u] for ts in s_light]
             t_static_u = combine_lights(per, light_shares(lights, srecv.gaussians.positions[u]))
-        t_dyn = (combine_lights(d_light, light_shares(lights, drecv.gaussians.positions)) if lights
-                 else np.ones(drecv.gaussians.count, np.float32))
+        # moving receivers: the lights' shares only where some light is blocked (elsewhere every
+        # light gives 1, and so does any mix of them: combine_lights snaps it to exactly 1)
+        t_dyn = np.ones(drecv.gaussians.count, np.float32)
+        dark = np.flatnonzero(np.logical_or.reduce([td < 1.0 for td in d_light])) if lights else []
+        if len(dark):
+            t_dyn[dark] = combine_lights([td[dark] for td in d_light],
+                                         light_shares(lights, drecv.gaussians.positions[dark]))
         u, t_static_u, sky_u = self._sky_hidden(shares, u, t_static_u)
         clk.add("shadows", t)
         return FrameShadows(drecv, u, t_static_u, t_dyn, d_light, sky_u), extra
@@ -653,13 +659,16 @@ class ShotProcessor:
         keep = not lights and self.opts.keep_level_without_lights
         if keep and NO_LIGHT_NOTE not in self.warnings:
             self.warnings.append(NO_LIGHT_NOTE)
-        for (path, job), pt in zip(jobs, transfers, strict=True):
-            vis = self._visibility(path, lights, shadows)  # keyed by the shadow lights, not the calibrated copies
-            scale, probe = relight_factors(**job, visibility=vis, transfer=pt, keep_level=keep)
+        # the prims' factors side by side (pure functions of their inputs), their probes written in order
+        tasks = [partial(relight_factors, **job, visibility=self._visibility(path, lights, shadows),  # (keyed by
+                         transfer=pt, keep_level=keep)  # the shadow lights, not the calibrated copies)
+                 for (path, job), pt in zip(jobs, transfers, strict=True)]
+        results = run_tasks(tasks)
+        t = self.clock.add("probe", t)
+        for (path, job), (scale, probe) in zip(jobs, results, strict=True):
             relit[path] = scale
-            t = self.clock.add("probe", t)
             self._write_probe(path, frame, job["centre"], probe, author, probe_dir)
-            t = self.clock.add("probe_write", t)
+        self.clock.add("probe_write", t)
         return relit
 
     def _visibility(self, path: str, lights, shadows: FrameShadows | None) -> list:
