@@ -228,6 +228,7 @@ class ShotProcessor:
         # static prim sets (_static_receivers); the block's chunk extents
         self._scene_packs: dict = {}
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
+        self._static_shared = None  # (static rows, whole set) the static receivers and the buffer share
         self._local_normals: dict = {}
         self._probe_blends: dict = {}
         self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
@@ -255,6 +256,7 @@ class ShotProcessor:
         shared: dict = {}  # (the prims' ancestors read once)
         infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime(), shared=shared) for p in prims]
         self.counts = {i.path: i.count for i in infos}
+        self.degrees = {i.path: i.sh_degree for i in infos}
         self.roles, warnings = resolve_roles(infos, self.opts.scene_paths, self.opts.avatar_paths,
                                              self.opts.object_paths)
         self.warnings += warnings
@@ -351,11 +353,45 @@ class ShotProcessor:
     def _static_receivers(self, paths: list) -> Receivers:
         """The static prims ``paths`` concatenated (``Receivers``), once per shot and list of paths:
         the static receivers, the static casters and the light estimate's scene share it when they
-        name the same prims."""
+        name the same prims, and the probe renders' shot buffer when they are every static prim
+        (:meth:`_static_part`)."""
         key = ("static set", tuple(paths))
         if key not in self._scene_packs:
-            self._scene_packs[key] = Receivers.build([(p, self.static[p]) for p in paths])
+            part = self._static_part() if tuple(paths) == tuple(self.static) else None
+            if part is None:
+                self._scene_packs[key] = Receivers.build([(p, self.static[p]) for p in paths])
+            else:
+                ranges, start = {}, 0
+                for p in paths:
+                    ranges[p] = (start, start + self.static[p].count)
+                    start += self.static[p].count
+                self._scene_packs[key] = Receivers(part[0], ranges)
         return self._scene_packs[key]
+
+    def _static_part(self):
+        """Every static prim concatenated in the shot buffer's order (:meth:`_shot_buffer`) into arrays
+        with room after them for the moving prims' rows (their counts as described at the start):
+        ``(the static rows, as views, the whole set)``, kept as ``self._static_shared``, so that the
+        shot buffer is the same arrays, not a second copy of the static scene. None (each then has
+        its own copy) where the buffer could differ from the plain concatenation: a moving prim of
+        a higher SH degree, or raw log-scales, logit opacities or extras that concatenation keeps."""
+        static = list(self.static.values())
+        moving = [r.path for r in self.roles if r.per_frame]
+        if not static or any(g.log_scales is not None or g.logit_opacities is not None or g.extras for g in static):
+            return None
+        degree = max(g.sh_degree for g in static)
+        if any(self.degrees.get(p, degree + 1) > degree for p in moving):
+            return None
+        rows = sum(self.counts[p] for p in moving)
+        room = GaussianSet(np.zeros((rows, 3), np.float32), np.zeros((rows, 4), np.float32),
+                           np.zeros((rows, 3), np.float32), np.zeros(rows, np.float32),
+                           np.zeros((rows, 1, 3), np.float32))
+        whole = GaussianSet.concatenate(static + [room], label="shot")
+        n = whole.count - rows
+        part = GaussianSet(whole.positions[:n], whole.orientations[:n], whole.scales[:n], whole.opacities[:n],
+                           whole.sh[:n], label="receivers")
+        self._static_shared = (part, whole)
+        return self._static_shared
 
     # ------------------------------------------------------------------ per frame
     def _frame(self, frame: float, author, probe_dir: Path):
@@ -902,11 +938,19 @@ class ShotProcessor:
         if self._buffer is None or self._buffer[0] != counts:
             order = list(self.static) + list(dyn)
             sets = {**self.static, **dyn}
-            buf = GaussianSet.concatenate([sets[p] for p in order], label="shot")
             offsets = np.cumsum([0] + [sets[p].count for p in order])
             spans = {p: (int(offsets[i]), int(offsets[i + 1])) for i, p in enumerate(order)}
-            self._buffer = (counts, buf, spans, -1)
-            return buf, spans
+            shared = self._static_shared
+            if (shared is not None and shared[1].count == offsets[-1] and shared[0].count == offsets[len(self.static)]
+                    and all(g.sh.shape[1] <= shared[1].sh.shape[1] for g in dyn.values())):
+                # the static receivers' arrays, their room filled with the moving prims below: the
+                # values of the plain concatenation (same SH width, no raw fields), without its copy
+                buf = shared[1]
+                self._buffer = (counts, buf, spans, -1)
+            else:
+                buf = GaussianSet.concatenate([sets[p] for p in order], label="shot")
+                self._buffer = (counts, buf, spans, -1)
+                return buf, spans
         _, buf, spans, _ = self._buffer
         k = buf.sh.shape[1]
         for p, g in dyn.items():
