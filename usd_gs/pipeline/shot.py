@@ -840,7 +840,11 @@ class ShotProcessor:
             local = [self._local_sh(p, frame, sets[p]) for p in paths]
             regular = (len({s.shape[1] for s in local}) == 1
                        and all(srecv.ranges[p][0] == offsets[i] for i, p in enumerate(paths)))
-            block = (offsets, np.concatenate(local).astype(np.float32, copy=False)) if regular else False
+            if regular and srecv.gaussians.sh.shape[1] == local[0].shape[1] and all(
+                    sh is sets[p].sh for sh, p in zip(local, paths, strict=True)):
+                block = (offsets, srecv.gaussians.sh)  # every prim's SH as stored: the receivers' rows
+            else:
+                block = (offsets, np.concatenate(local).astype(np.float32, copy=False)) if regular else False
             self._static_sh_block = block
         if block is not False:
             # every static receiver at once: the same values as the prim-by-prim loop below
