@@ -36,8 +36,9 @@ from numba_kernels.capsule import within_capsule
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.pipeline.options import ProcessOptions
+from usd_gs.point_blocks import PointBlocks, block_starts
 from usd_gs.relight.avatar import relight_factors
-from usd_gs.relight.far_field import FarLayers, static_blocks
+from usd_gs.relight.far_field import FarLayers
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
@@ -195,7 +196,8 @@ def warm_up(groups=GROUPS) -> None:
         scale_sh(avatar.sh, opts.relight_gamma * scale)
         probe.to_latlong(*opts.probe_texture)
         # the far field's ball tests over the static part (FarLayers.clear, block by block)
-        FarLayers(blocks=static_blocks([(0, scene.count)])).clear(everything.positions[:scene.count], centre, 0.5, 1.0)
+        layers = FarLayers(blocks=PointBlocks(block_starts([(0, scene.count)])))
+        layers.clear(everything.positions[:scene.count], centre, 0.5, 1.0)
         _mark("relight")
     if "shadows" in groups:
         out = np.ones((4, atlas.K), np.float32)

@@ -44,10 +44,11 @@ from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, s
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.shot_cache import ShotCache
 from usd_gs.pipeline.summary import ProcessSummary
+from usd_gs.point_blocks import PointBlocks
 from usd_gs.relight.appearance import read_appearance
 from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
-from usd_gs.relight.far_field import KEEP, FarField, FarLayers, static_blocks
+from usd_gs.relight.far_field import KEEP, FarField, FarLayers
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.sun_estimation import up_vector
@@ -348,6 +349,7 @@ class ShotProcessor:
         static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
         casters = self._static_receivers(static_casters)
         self._scene_block = casters.gaussians if static_casters else None
+        self._scene_block_ranges = casters.ranges
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
 
     def _static_receivers(self, paths: list) -> Receivers:
@@ -366,6 +368,15 @@ class ShotProcessor:
                     ranges[p] = (start, start + self.static[p].count)
                     start += self.static[p].count
                 self._scene_packs[key] = Receivers(part[0], ranges)
+        return self._scene_packs[key]
+
+    def _point_blocks(self, name: str, ranges: dict) -> PointBlocks | None:
+        """The static prims' rows of a static set (``name``: "shot static", the shot buffer's static part
+        from its ``spans``; "static casters", the static casters' set from its ranges) as
+        ``PointBlocks`` for ball tests, once per shot; None where they do not tile its leading rows."""
+        key = ("point blocks", name)
+        if key not in self._scene_packs:
+            self._scene_packs[key] = PointBlocks.of_ranges({p: ranges[p] for p in self.static if p in ranges})
         return self._scene_packs[key]
 
     def _static_part(self):
@@ -742,9 +753,13 @@ class ShotProcessor:
                     continue
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * lt.radius,
                         0.5 * float(np.hypot(lt.width, lt.height)))
+                blocks = self._point_blocks("shot static", spans)
+                if blocks is not None:  # one block-by-block test over the static part
+                    inside = blocks.within(everything.positions[:blocks.starts[-1]], lt.position, r)
                 for p in scene:
                     a, b = spans[p]
-                    keep[a:b] &= ~within_capsule(everything.positions[a:b], lt.position, lt.position, r)
+                    keep[a:b] &= ~(inside[a:b] if blocks is not None else
+                                   within_capsule(everything.positions[a:b], lt.position, lt.position, r))
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 
@@ -1000,7 +1015,9 @@ class ShotProcessor:
             keep = np.ones(block.count, bool)
             if light.kind == "point":
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * light.radius)
-                keep = ~within_capsule(block.positions, light.position, light.position, r)
+                blocks = self._point_blocks("static casters", self._scene_block_ranges)
+                keep = ~(blocks.within(block.positions, light.position, r) if blocks is not None else
+                         within_capsule(block.positions, light.position, light.position, r))
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 
@@ -1082,9 +1099,8 @@ class ShotProcessor:
         if far is None or far.static_count != static_count:
             layers = self._far_fields.get(("layers", static_count))
             if layers is None:  # one store per static part, shared by the relit prims (and a farm run's chunks)
-                bounds = sorted(spans[p] for p in self.static if p in spans)
                 layers = FarLayers(KEEP * len(self._relit_paths), backing=self.shot_cache,
-                                   blocks=static_blocks(bounds) if bounds and bounds[0][0] == 0 else None)
+                                   blocks=self._point_blocks("shot static", spans))
                 self._far_fields[("layers", static_count)] = layers
             far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count, layers)
         return far

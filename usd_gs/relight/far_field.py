@@ -38,27 +38,14 @@ import threading
 
 import numpy as np
 
-from numba_kernels.capsule import block_spheres, within_ball_blocks, within_capsule
+from numba_kernels.capsule import within_capsule
+from usd_gs.point_blocks import PointBlocks
 from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_faces
 
 #: far layers kept per relit prim (a prim that moves back and forth between two cells reuses both)
 KEEP = 2
 #: grid levels tried for a far layer (module docstring): pitch and clearance double per level
 LEVELS = 3
-#: the static part's blocks for the ball tests hold at most this many Gaussians (a larger prim is split)
-BLOCK = 65536
-
-
-def static_blocks(bounds) -> np.ndarray:
-    """(B+1,) int64 block starts over a shot buffer's static part from its prims' ``bounds``
-    (``[(start, end)]`` in buffer order, contiguous from 0): each prim one block, split into runs of
-    at most :data:`BLOCK` Gaussians (a capture's points are near each other in storage order more
-    often than not; where they are not, a block is merely tested point by point)."""
-    cuts = [0]
-    for a, b in bounds:
-        cuts.extend(range(int(a) + BLOCK, int(b), BLOCK))
-        cuts.append(int(b))
-    return np.unique(np.asarray(cuts, np.int64))
 
 
 def composite_faces(near: tuple, far: tuple) -> tuple:
@@ -90,15 +77,14 @@ class FarLayers:
     ``put(key, arrays)``): a layer missing here is looked up there before it is rendered, and a
     rendered layer with a far part is stored there (keys of str, int and float only).
 
-    ``blocks``: None, or :func:`static_blocks` of the static part: the ball tests over the static
-    Gaussians (:meth:`within`, :meth:`clear`) then decide whole blocks that lie inside or outside a
-    ball at once (the same values; a far scene of many bricks is not tested point by point)."""
+    ``blocks``: None, or the static part's ``usd_gs.point_blocks.PointBlocks``: the ball tests over
+    the static Gaussians (:meth:`within`, :meth:`clear`) then decide whole blocks that lie inside or
+    outside a ball at once (the same values; a far scene of many bricks is not tested point by point)."""
 
-    def __init__(self, keep: int = KEEP, backing=None, blocks=None):
+    def __init__(self, keep: int = KEEP, backing=None, blocks: PointBlocks | None = None):
         self.keep = max(1, int(keep))
         self.backing = backing
-        self.blocks = None if blocks is None else np.asarray(blocks, np.int64)
-        self._spheres = None
+        self.blocks = blocks
         self._lock = threading.Lock()
         self._layers: list = []  # [(key, (near indices or None, faces or None))], most recent first
         self._clear: dict = {}
@@ -127,14 +113,10 @@ class FarLayers:
     def within(self, static_positions: np.ndarray, centre, radius: float) -> np.ndarray:
         """(N,) bool: the static Gaussian centres ``static_positions`` (N, 3) (the static part, the
         same every call) within ``radius`` of ``centre``: ``within_capsule``'s values, block by block
-        where the store has ``blocks`` covering them."""
-        if self.blocks is None or self.blocks[-1] != len(static_positions):
+        where the store has ``blocks``."""
+        if self.blocks is None:
             return within_capsule(static_positions, centre, centre, radius)
-        with self._lock:
-            if self._spheres is None:
-                self._spheres = block_spheres(static_positions, self.blocks)
-            spheres = self._spheres
-        return within_ball_blocks(static_positions, self.blocks, spheres, centre, radius)
+        return self.blocks.within(static_positions, centre, radius)
 
     def clear(self, static_positions: np.ndarray, anchor: np.ndarray, inner: float, outer: float) -> bool:
         """True when no static Gaussian centre lies farther than ``inner`` and within ``outer`` of

@@ -87,6 +87,12 @@ class BlockExtents:
         """(2, 3) float32 extent of the rows ``keep`` (N,) bool (None: every row) at least one of
         which is kept; ``GaussianDataError`` as ``GaussianSet.extent`` for a box that overflows."""
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        if not self._chunks and self.g.count:  # every chunk's box at once, the chunks in threads
+            from numba_kernels.extent import block_extents
+
+            starts = np.append(np.arange(0, self.g.count, self.CHUNK), self.g.count)
+            boxes, ok = block_extents(self.g.positions, self.g.orientations, self.g.scales, starts, self.n_sigma)
+            self._chunks = {int(a): (boxes[i] if ok[i] else None) for i, a in enumerate(starts[:-1])}
         for a in range(0, self.g.count, self.CHUNK):
             b = min(a + self.CHUNK, self.g.count)
             part = None if keep is None else keep[a:b]

@@ -1,0 +1,63 @@
+"""Ball tests over a large static point set, decided block by block.
+
+A shot's static scene is many prims (a captured scene's bricks); a test such as "which centres lie
+within r of this point" over every one of its Gaussians costs a pass over millions of rows, yet
+most prims lie wholly inside or wholly outside the ball. :class:`PointBlocks` keeps each prim's rows
+(split into runs of at most :data:`BLOCK`) as a block with the bounding sphere of its centres
+(``numba_kernels.capsule.block_spheres``, computed on first use) and answers
+:meth:`PointBlocks.within` with ``numba_kernels.capsule.within_ball_blocks``: the same booleans as
+``within_capsule`` on every row, testing row by row only the blocks the ball's boundary crosses.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from numba_kernels.capsule import block_spheres, within_ball_blocks, within_capsule
+
+#: a block holds at most this many rows (a larger prim is split: a capture's points are near each
+#: other in storage order more often than not; where they are not, a block is merely tested row by row)
+BLOCK = 65536
+
+
+def block_starts(bounds) -> np.ndarray:
+    """(B+1,) int64 block starts from prims' row ``bounds`` (``[(start, end)]``, contiguous from 0
+    in increasing order): each prim one block, split into runs of at most :data:`BLOCK` rows."""
+    cuts = [0]
+    for a, b in bounds:
+        cuts.extend(range(int(a) + BLOCK, int(b), BLOCK))
+        cuts.append(int(b))
+    return np.unique(np.asarray(cuts, np.int64))
+
+
+class PointBlocks:
+    """The rows ``0 .. starts[-1]`` of a point set in blocks (``starts`` from :func:`block_starts`);
+    the positions are passed to each call (the same values every time: the spheres are computed
+    from the first call's). Thread-safe."""
+
+    def __init__(self, starts):
+        self.starts = np.asarray(starts, np.int64)
+        self._spheres = None
+        self._lock = threading.Lock()
+
+    @classmethod
+    def of_ranges(cls, ranges) -> PointBlocks | None:
+        """Blocks over prims' ``ranges`` (``{path: (start, end)}``), or None where they do not tile
+        the rows from 0 without gaps."""
+        bounds = sorted((int(a), int(b)) for a, b in ranges.values() if b > a)
+        if not bounds or bounds[0][0] != 0 or any(b[1] != c[0] for b, c in zip(bounds, bounds[1:], strict=False)):
+            return None
+        return cls(block_starts(bounds))
+
+    def within(self, positions: np.ndarray, centre, radius: float) -> np.ndarray:
+        """(N,) bool: ``within_capsule(positions, centre, centre, radius)``, the same values, block
+        by block; every row when ``positions`` does not have ``starts[-1]`` rows."""
+        if len(positions) != self.starts[-1]:
+            return within_capsule(positions, centre, centre, radius)
+        with self._lock:
+            if self._spheres is None:
+                self._spheres = block_spheres(positions, self.starts)
+            spheres = self._spheres
+        return within_ball_blocks(positions, self.starts, spheres, centre, radius)
