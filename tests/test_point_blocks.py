@@ -25,7 +25,8 @@ def test_within_equals_the_per_point_test():
     bricks = [rng.normal(c, 0.3, (int(rng.integers(50, 4000)), 3)) for c in rng.uniform(-30, 30, (80, 3))]
     p = np.concatenate(bricks).astype(np.float32)
     ends = np.cumsum([len(b) for b in bricks])
-    blocks = PointBlocks.of_ranges({f"/b{i}": (e - len(b), e) for i, (b, e) in enumerate(zip(bricks, ends, strict=True))})
+    ranges = {f"/b{i}": (e - len(b), e) for i, (b, e) in enumerate(zip(bricks, ends, strict=True))}
+    blocks = PointBlocks.of_ranges(ranges)
     for centre, radius in (((0.0, 0.0, 0.0), 15.0), ((10.0, -5.0, 3.0), 2.0), ((0.0, 0.0, 0.0), 100.0)):
         got = blocks.within(p, np.array(centre), radius)
         assert np.array_equal(got, within_capsule(p, np.array(centre), np.array(centre), radius))
