@@ -272,13 +272,16 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
             iz = 1.0 / z
             u = cams[k, 12] * x * iz + cams[k, 14]
             v = cams[k, 13] * y * iz + cams[k, 15]
-            # lambda_max(J V Sigma V^T J^T) <= smax^2 ||J||_F^2 bounds the bounding-box half-extent
+            # the bounding box's half-extents along u and v are sqrt(q) times the square roots of the
+            # projected covariance's diagonal, |J_row V R S|^2 + dilation <= smax^2 |J_row|^2 + dilation
+            # (V and R orthonormal), with |J_row0|^2 = (fx / z)^2 (1 + tx^2) and likewise for v
             tx = min(cams[k, 19], max(cams[k, 18], x * iz))
             ty = min(cams[k, 21], max(cams[k, 20], y * iz))
-            jf2 = (cams[k, 12] * iz) ** 2 * (1.0 + tx * tx) + (cams[k, 13] * iz) ** 2 * (1.0 + ty * ty)
-            eb = math.sqrt(qcut * (smax * smax * jf2 + dilation)) * (1.0 + 1e-6) + 1e-6
-            j0, j1 = _pixel_range(u, eb, width)
-            i0, i1 = _pixel_range(v, eb, height)
+            s2 = smax * smax
+            ebx = math.sqrt(qcut * (s2 * (cams[k, 12] * iz) ** 2 * (1.0 + tx * tx) + dilation)) * (1.0 + 1e-6) + 1e-6
+            eby = math.sqrt(qcut * (s2 * (cams[k, 13] * iz) ** 2 * (1.0 + ty * ty) + dilation)) * (1.0 + 1e-6) + 1e-6
+            j0, j1 = _pixel_range(u, ebx, width)
+            i0, i1 = _pixel_range(v, eby, height)
             if j1 >= j0 and i1 >= i0:
                 bits |= np.int64(1) << k
         vis[k_] = bits

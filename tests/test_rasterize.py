@@ -140,7 +140,7 @@ def test_sub_pixel_splats_are_culled_before_projection_and_the_image_is_unchange
 
 def _full_cull_bits(pos, scales, opac, cams, width, height, dilation, guard=1.3):
     """The cull's per-camera bits without its division-free early reject: the full bound of
-    ``numba_kernels.rasterize._cull``'s docstring, in numpy (float64)."""
+    ``numba_kernels.rasterize._cull`` (each image axis's half-extent bound), in numpy (float64)."""
     from numba_kernels.rasterize import ALPHA_MIN, SUPPORT_Q
 
     p = np.asarray(pos, np.float64)
@@ -159,12 +159,12 @@ def _full_cull_bits(pos, scales, opac, cams, width, height, dilation, guard=1.3)
             mx, my = (0.5 * width - cx) / fx, (0.5 * height - cy) / fy
             tx = np.clip(x * iz, mx - guard * hx, mx + guard * hx)
             ty = np.clip(y * iz, my - guard * hy, my + guard * hy)
-            jf2 = (fx * iz) ** 2 * (1 + tx * tx) + (fy * iz) ** 2 * (1 + ty * ty)
-            eb = np.sqrt(q * (smax**2 * jf2 + dilation)) * (1 + 1e-6) + 1e-6
+            ebx = np.sqrt(q * (smax**2 * (fx * iz) ** 2 * (1 + tx * tx) + dilation)) * (1 + 1e-6) + 1e-6
+            eby = np.sqrt(q * (smax**2 * (fy * iz) ** 2 * (1 + ty * ty) + dilation)) * (1 + 1e-6) + 1e-6
             u, w = fx * x * iz + cx, fy * y * iz + cy
             hit = ((z > cam.near) & (z <= cam.far) & (op >= ALPHA_MIN)
-                   & (np.minimum(np.floor(u + eb - 0.5), width - 1) >= np.maximum(np.ceil(u - eb - 0.5), 0))
-                   & (np.minimum(np.floor(w + eb - 0.5), height - 1) >= np.maximum(np.ceil(w - eb - 0.5), 0)))
+                   & (np.minimum(np.floor(u + ebx - 0.5), width - 1) >= np.maximum(np.ceil(u - ebx - 0.5), 0))
+                   & (np.minimum(np.floor(w + eby - 0.5), height - 1) >= np.maximum(np.ceil(w - eby - 0.5), 0)))
         bits |= np.where(hit, np.int64(1) << k, 0)
     return bits
 
