@@ -8,6 +8,11 @@ inside when ``|p - a - t u|^2 <= (radius + extra)^2``. :func:`within_capsule_sca
 point's extra reach as ``factor`` times its largest scale, computed in the kernel in float32 (the
 value of ``factor * scales.max(axis=1)`` on float32 scales) so that no per-point array is made.
 Reference: ``numba_kernels.reference.capsule``.
+
+:func:`within_ball_blocks` answers the ball test (``a == b``) for points stored in contiguous
+blocks with bounding spheres (:func:`block_spheres`): a block wholly inside or outside the ball is
+decided at once, the others point by point, the same values as :func:`within_capsule` (its own
+reference; ``tests/test_capsule.py``).
 """
 
 from __future__ import annotations
