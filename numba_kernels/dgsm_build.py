@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .dgsm_model import Z_SATURATED, check_points, check_vector, ray_params
+from .dgsm_model import Z_SATURATED, check_points, check_vector, light_offset, ray_params_from
 from .jit_options import threaded
 from .octahedral import OCT_LIPSCHITZ, oct_decode, oct_encode, pixel_center_uv, uv_to_pixel_coords, wrap_pixel
 from .thread_chunks import run_chunks
@@ -412,14 +412,24 @@ def _max_of(x, n):
 
 @njit(cache=True, fastmath=False, inline="always")
 def _accumulate_one(occ, i, ox, oy, oz, dx, dy, dz, dir_dep, dt, kmin, kmax, bin_skip, tau, diff, row, t0, tb):
+    """:func:`_accumulate_one_from` for a ray from ``(ox, oy, oz)``."""
+    p0, p1, p2 = light_offset(occ, i, ox, oy, oz)
+    return _accumulate_one_from(occ, i, p0, p1, p2, dx, dy, dz, dir_dep, dt, kmin, kmax, bin_skip, tau, diff, row, t0,
+                                tb)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _accumulate_one_from(occ, i, p0, p1, p2, dx, dy, dz, dir_dep, dt, kmin, kmax, bin_skip, tau, diff, row, t0, tb):
     """Add occluder i's depth on the ray ``o + s d`` from ``s = t0`` (0 for a point light,
     ``-inf`` for a directional one) to the bin centres ``tb + (k + 1/2) dt``, k = kmin..kmax;
     ``tau``/``diff`` are 2D work arrays and ``row`` the row to add to (passing the 2D array
-    and a row index avoids creating a refcounted view per call). Returns ``(erfc evaluations,
+    and a row index avoids creating a refcounted view per call); ``(p0, p1, p2)`` is the occluder's
+    ``dgsm_model.light_offset`` of the ray origin (the same for every ray of a point light: computed
+    once per occluder). Returns ``(erfc evaluations,
     the pair's full step (its depth on the whole ray past t0), s* + Z_CUT/sq: the ray depth past
     which it has added all but erfc(Z_CUT) of that step)`` (0, 0, -inf for a pair that adds
     nothing)."""
-    scale, s_star, sq = ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep)
+    scale, s_star, sq = ray_params_from(occ, i, p0, p1, p2, dx, dy, dz, dir_dep)
     if scale < EPS_PAIR:
         return 0, 0.0, -np.inf
     z0 = sq * (t0 - s_star)
@@ -497,12 +507,13 @@ def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                 o = tile_items[q]
                 if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
                     continue
+                p0, p1, p2 = light_offset(occ, o, ox, oy, oz)  # (every ray leaves the light)
                 for a in range(npx):
                     if not hit[a]:
                         continue
                     npairs[a] += 1
-                    ne[a] += _accumulate_one(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin, kmax,
-                                             bin_skip, tau, diff, a, 0.0, 0.0)[0]
+                    ne[a] += _accumulate_one_from(occ, o, p0, p1, p2, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin,
+                                                  kmax, bin_skip, tau, diff, a, 0.0, 0.0)[0]
         for a in range(npx):
             dx, dy, dz = dxs[a], dys[a], dzs[a]
             for q in range(glob.shape[0]):  # a call, not a second inlined copy (compile time; few occluders)

@@ -162,14 +162,22 @@ def pack_occluders(mu, prec, alpha, kappa: float = 1.0, mapping: str = "avg", de
 
 
 @njit(cache=True, fastmath=False, inline="always")
-def ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep):
-    """Per (ray, occluder) constants: returns ``(scale, s_star, sq)`` such that the optical
-    depth between ``t0 <= t1`` is ``scale * erf_diff(sq (t0 - s_star), sq (t1 - s_star))``.
-    ``scale = beta sqrt(pi/(2a)) exp(-m2/2)`` (0 when it underflows), ``s_star = -b/a`` is the
-    closest-approach parameter and ``sq = sqrt(a/2)``."""
+def light_offset(occ, i, ox, oy, oz):
+    """Occluder i's whitened offset of the ray origin ``o``: ``rho = diag(1/s) R^T (o - mu)``, the
+    part of :func:`ray_params` that does not depend on the direction (a kernel that casts many rays
+    from one origin computes it once per occluder: the same values)."""
     rx = ox - occ[i, 0]
     ry = oy - occ[i, 1]
     rz = oz - occ[i, 2]
+    p0 = (occ[i, 3] * rx + occ[i, 6] * ry + occ[i, 9] * rz) * occ[i, 12]
+    p1 = (occ[i, 4] * rx + occ[i, 7] * ry + occ[i, 10] * rz) * occ[i, 13]
+    p2 = (occ[i, 5] * rx + occ[i, 8] * ry + occ[i, 11] * rz) * occ[i, 14]
+    return p0, p1, p2
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def ray_params_from(occ, i, p0, p1, p2, dx, dy, dz, dir_dep):
+    """:func:`ray_params` from the occluder's :func:`light_offset` ``(p0, p1, p2)``."""
     # whitened local coordinates: delta = diag(1/s) R^T d, rho = diag(1/s) R^T r
     i0 = occ[i, 12]
     i1 = occ[i, 13]
@@ -177,9 +185,6 @@ def ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep):
     d0 = (occ[i, 3] * dx + occ[i, 6] * dy + occ[i, 9] * dz) * i0
     d1 = (occ[i, 4] * dx + occ[i, 7] * dy + occ[i, 10] * dz) * i1
     d2 = (occ[i, 5] * dx + occ[i, 8] * dy + occ[i, 11] * dz) * i2
-    p0 = (occ[i, 3] * rx + occ[i, 6] * ry + occ[i, 9] * rz) * i0
-    p1 = (occ[i, 4] * rx + occ[i, 7] * ry + occ[i, 10] * rz) * i1
-    p2 = (occ[i, 5] * rx + occ[i, 8] * ry + occ[i, 11] * rz) * i2
     a = d0 * d0 + d1 * d1 + d2 * d2
     if not (a > 0.0):
         return 0.0, 0.0, 1.0
@@ -197,6 +202,16 @@ def ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep):
     else:
         pref = amp * math.sqrt(0.5 * math.pi / a)
     return pref * math.exp(-0.5 * m2), s_star, math.sqrt(0.5 * a)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep):
+    """Per (ray, occluder) constants: returns ``(scale, s_star, sq)`` such that the optical
+    depth between ``t0 <= t1`` is ``scale * erf_diff(sq (t0 - s_star), sq (t1 - s_star))``.
+    ``scale = beta sqrt(pi/(2a)) exp(-m2/2)`` (0 when it underflows), ``s_star = -b/a`` is the
+    closest-approach parameter and ``sq = sqrt(a/2)``."""
+    p0, p1, p2 = light_offset(occ, i, ox, oy, oz)
+    return ray_params_from(occ, i, p0, p1, p2, dx, dy, dz, dir_dep)
 
 
 @njit(cache=True, fastmath=False)
@@ -220,7 +235,14 @@ def depth_from_light(occ, i, ox, oy, oz, dx, dy, dz, t1, dir_dep):
     (``z0 <= -Z_SATURATED``) the depth is ``scale * erfc(-z1)`` (``scale * 2`` once ``z1`` saturates
     too), and when ``t1`` lies before the support or the light past it the depth is 0. Each
     shortcut drops less than ``scale * 2.2e-17``."""
-    scale, s_star, sq = ray_params(occ, i, ox, oy, oz, dx, dy, dz, dir_dep)
+    p0, p1, p2 = light_offset(occ, i, ox, oy, oz)
+    return depth_from_offset(occ, i, p0, p1, p2, dx, dy, dz, t1, dir_dep)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def depth_from_offset(occ, i, p0, p1, p2, dx, dy, dz, t1, dir_dep):
+    """:func:`depth_from_light` from the occluder's :func:`light_offset` ``(p0, p1, p2)``."""
+    scale, s_star, sq = ray_params_from(occ, i, p0, p1, p2, dx, dy, dz, dir_dep)
     if scale == 0.0:
         return 0.0
     z0 = -sq * s_star

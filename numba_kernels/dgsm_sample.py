@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from .dgsm_build import cone_hits
-from .dgsm_model import depth_from_light, depth_from_light_call
+from .dgsm_model import depth_from_light_call, depth_from_offset, light_offset
 from .jit_options import prange_only, threaded
 from .octahedral import oct_encode, uv_to_pixel_coords, wrap_pixel
 from .quaternion import quat_to_rotation
@@ -149,9 +149,10 @@ def _refine_group(g, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, t
             o = tile_items[q]
             if cone_hits(dxs, dys, dzs, n, cone, o, hit) == 0:
                 continue
+            p0, p1, p2 = light_offset(occ, o, ox, oy, oz)  # (every ray leaves the light)
             for a in range(n):
                 if hit[a]:
-                    tau[a] += depth_from_light(occ, o, ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
+                    tau[a] += depth_from_offset(occ, o, p0, p1, p2, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
         for a in range(n):  # the global list (few occluders) and the no-culling ablation: calls, not inlined
             for q in range(glob.shape[0]):
                 tau[a] += depth_from_light_call(occ, glob[q], ox, oy, oz, dxs[a], dys[a], dzs[a], ts[a], dir_dep)
