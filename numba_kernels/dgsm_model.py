@@ -32,7 +32,8 @@ Far pairs: when the closest approach of a ray is more than ``sqrt(M2_CUT) = 14.1
 units from a Gaussian's centre its depth on that ray, below ``4e-44 beta sqrt(2 pi / a)``, is
 taken as 0 (well under float64 resolution of any transmittance that matters).
 
-numba cache caveat: ``ray_params`` / ``segment_depth`` are compiled into the kernels of
+numba cache caveat: ``ray_params`` / ``segment_depth`` (and their parts ``light_offset``,
+``ray_params_from``, ``depth_from_offset``) are compiled into the kernels of
 ``dgsm_exact``, ``dgsm_build``, ``dgsm_sample``, ``dgsm_directional`` and ``cubemap``;
 numba's ``cache=True`` keys each kernel on its own file only, so after editing this file
 delete ``numba_kernels/__pycache__/*.nb[ic]`` or those kernels keep the old code.
