@@ -35,7 +35,6 @@ PART_NAMES = {PART_FLOOR: "floor", PART_WALL: "wall", PART_CEILING: "ceiling",
               PART_FURNITURE: "furniture", PART_LAMP: "lamp"}
 
 
-
 @dataclass
 class Lamp:
     """A point-like emitter: ``position`` (3,) metres, ``color`` (3,) linear RGB (max 1),

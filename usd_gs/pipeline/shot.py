@@ -370,14 +370,15 @@ class ShotProcessor:
                 self._scene_packs[key] = Receivers(part[0], ranges)
         return self._scene_packs[key]
 
-    def _point_blocks(self, name: str, ranges: dict) -> PointBlocks | None:
-        """The static prims' rows of a static set (``name``: "shot static", the shot buffer's static part
-        from its ``spans``; "static casters", the static casters' set from its ranges) as
-        ``PointBlocks`` for ball tests, once per shot; None where they do not tile its leading rows."""
-        key = ("point blocks", name)
-        if key not in self._scene_packs:
-            self._scene_packs[key] = PointBlocks.of_ranges({p: ranges[p] for p in self.static if p in ranges})
-        return self._scene_packs[key]
+    def _point_blocks(self, ranges: dict) -> PointBlocks | None:
+        """The static prims' rows of a static set (its prims' ``ranges``: the shot buffer's spans, the
+        static casters' ranges) as ``PointBlocks`` for ball tests, once per shot and row layout (sets
+        of the same layout are the same static prims in the same order: they share one); None where
+        the prims do not tile the set's leading rows."""
+        blocks = PointBlocks.of_ranges({p: ranges[p] for p in self.static if p in ranges})
+        if blocks is None:
+            return None
+        return self._scene_packs.setdefault(("point blocks", tuple(blocks.starts.tolist())), blocks)
 
     def _static_part(self):
         """Every static prim concatenated in the shot buffer's order (:meth:`_shot_buffer`) into arrays
@@ -681,14 +682,15 @@ class ShotProcessor:
         return idx, pts, w
 
     @property
-    def _relit_paths(self) -> set:
-        return {r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")}
+    def _relit_paths(self) -> list:
+        """The relit avatars and objects, in the order of the roles."""
+        return [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
 
     def _relight_jobs(self, dyn: dict, sets: dict, frame: float, lights=()) -> list:
         """``[(path, relight_factors keyword arguments without visibility)]`` of every relit avatar
         and object at ``frame`` (:meth:`_relight_inputs`)."""
         jobs = []
-        relit = [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
+        relit = self._relit_paths
         if relit:
             everything, spans = self._shot_buffer(dyn)
         for path in relit:
@@ -748,12 +750,12 @@ class ShotProcessor:
             keep = np.ones(everything.count, bool)
             roles = {r.path: r.role for r in self.roles}
             scene = [p for p in self.static if roles.get(p) == "scene"]
+            blocks = self._point_blocks(spans)
             for lt in lights:
                 if lt.kind != "point":
                     continue
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * lt.radius,
                         0.5 * float(np.hypot(lt.width, lt.height)))
-                blocks = self._point_blocks("shot static", spans)
                 if blocks is not None:  # one block-by-block test over the static part
                     inside = blocks.within(everything.positions[:blocks.starts[-1]], lt.position, r)
                 for p in scene:
@@ -817,7 +819,7 @@ class ShotProcessor:
     def _calibration_centre(self, fallback):
         """The first relit prim's alpha-weighted centroid at the shot's first frame (cached)."""
         if self._calib_centre is None:
-            relit = sorted(self._relit_paths, key=[r.path for r in self.roles].index)
+            relit = self._relit_paths
             first = self._first_frame()
             g = self._read(relit[0], first) if relit else None
             self._calib_centre = alpha_weighted_centroid(g) if g is not None and g.count else np.asarray(fallback)
@@ -964,13 +966,12 @@ class ShotProcessor:
                     and all(g.sh.shape[1] <= shared[1].sh.shape[1] for g in dyn.values())):
                 # the static receivers' arrays, their room filled with the moving prims below: the
                 # values of the plain concatenation (same SH width, no raw fields), without its copy
-                buf = shared[1]
-                self._buffer = (counts, buf, spans, -1)
+                self._buffer = (counts, shared[1], spans)
             else:
                 buf = GaussianSet.concatenate([sets[p] for p in order], label="shot")
-                self._buffer = (counts, buf, spans, -1)
+                self._buffer = (counts, buf, spans)
                 return buf, spans
-        _, buf, spans, _ = self._buffer
+        _, buf, spans = self._buffer
         k = buf.sh.shape[1]
         for p, g in dyn.items():
             a, b = spans[p]
@@ -1015,7 +1016,7 @@ class ShotProcessor:
             keep = np.ones(block.count, bool)
             if light.kind == "point":
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * light.radius)
-                blocks = self._point_blocks("static casters", self._scene_block_ranges)
+                blocks = self._point_blocks(self._scene_block_ranges)
                 keep = ~(blocks.within(block.positions, light.position, r) if blocks is not None else
                          within_capsule(block.positions, light.position, light.position, r))
             self._scene_packs[key] = keep
@@ -1100,15 +1101,14 @@ class ShotProcessor:
             layers = self._far_fields.get(("layers", static_count))
             if layers is None:  # one store per static part, shared by the relit prims (and a farm run's chunks)
                 layers = FarLayers(KEEP * len(self._relit_paths), backing=self.shot_cache,
-                                   blocks=self._point_blocks("shot static", spans))
+                                   blocks=self._point_blocks(spans))
                 self._far_fields[("layers", static_count)] = layers
             far = self._far_fields[path] = FarField(radius, self.opts.probe_far_tolerance, static_count, layers)
         return far
 
     def _write_probe(self, path, frame, centre, probe, author, probe_dir: Path) -> None:
         """The prim's probe at ``frame``: its lat-long EXR in the probe folder and its /UsdGs/Probes sample."""
-        relit = [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
-        name = probe_names(relit)[path]
+        name = probe_names(self._relit_paths)[path]
         tex = probe_dir / f"{name}.{int(round(frame)):04d}.exr"
         h, w = self.opts.probe_texture
         probe.write_latlong_exr(tex, h, w)

@@ -247,7 +247,8 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
 
 
 def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[np.ndarray, float]]:
-    """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent."""
+    """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent (prims with
+    Gaussians only). The prims' ranges tile the rows in order, as :meth:`Receivers.build` makes them."""
     from numba_kernels.extent import block_extents
 
     out = {}
@@ -257,11 +258,7 @@ def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[
         return out
     # GaussianSet.extent's own kernel on each prim's rows, the prims in threads (one pass, no copies)
     starts = np.array([a for _, a, _ in items] + [items[-1][2]], np.int64)
-    if np.any(starts[1:-1] != np.array([b for _, _, b in items[:-1]], np.int64)):  # not contiguous: prim by prim
-        boxes = [block_extents(g.positions, g.orientations, g.scales, [a, b], k_sigma) for _, a, b in items]
-        boxes, ok = np.concatenate([x[0] for x in boxes]), np.concatenate([x[1] for x in boxes])
-    else:
-        boxes, ok = block_extents(g.positions, g.orientations, g.scales, starts, k_sigma)
+    boxes, ok = block_extents(g.positions, g.orientations, g.scales, starts, k_sigma)
     for i, (path, a, b) in enumerate(items):
         ext = (boxes[i].astype(np.float32) if ok[i] else g.subset(slice(a, b)).extent(k_sigma)).astype(np.float64)
         out[path] = (0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0])))

@@ -63,7 +63,8 @@ class _ColumnStore:
 
 class BlockExtents:
     """``GaussianSet.extent`` of rows of one large set, from extents of its fixed row chunks
-    computed once: :meth:`of` a row mask recomputes only the chunks the mask cuts into. The same
+    computed once (all in one threaded pass, on the first call): :meth:`of` a row mask recomputes
+    only the chunks the mask cuts into. The same
     bits as the extent of the masked subset (float64 minima and maxima, rounded to float32 once)."""
 
     CHUNK = 1 << 16
@@ -72,12 +73,11 @@ class BlockExtents:
         self.g, self.n_sigma = g, float(n_sigma)
         self._chunks: dict[int, np.ndarray | None] = {}
 
-    def _box(self, a: int, b: int, rows: np.ndarray | None = None) -> np.ndarray | None:
+    def _box(self, a: int, rows: np.ndarray) -> np.ndarray | None:
+        """The extent of the chunk at ``a``'s ``rows`` (None: none, or not finite)."""
         from numba_kernels.extent import gaussian_extent
 
         g = self.g
-        if rows is None:
-            return gaussian_extent(g.positions[a:b], g.orientations[a:b], g.scales[a:b], self.n_sigma)
         if not rows.size:
             return None
         idx = a + rows
@@ -97,11 +97,9 @@ class BlockExtents:
             b = min(a + self.CHUNK, self.g.count)
             part = None if keep is None else keep[a:b]
             if part is None or part.all():
-                if a not in self._chunks:
-                    self._chunks[a] = self._box(a, b)
                 box = self._chunks[a]
             else:
-                box = self._box(a, b, np.flatnonzero(part))
+                box = self._box(a, np.flatnonzero(part))
                 if box is None and not part.any():
                     continue
             if box is None:  # a box beyond float32: the subset's own extent names the element
