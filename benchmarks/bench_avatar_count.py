@@ -106,7 +106,9 @@ def run_tasks_serial(stage: Path, out: Path, frames: str) -> dict:
     seconds: dict = {}
     frame_no = [0]
 
-    def serial(tasks):
+    def serial(tasks, meanwhile=None):
+        if meanwhile is not None:
+            meanwhile()
         out = []
         for task in tasks:
             t = time.perf_counter()

@@ -1,7 +1,8 @@
 """The main job's concurrent tasks (shadow tasks of every light and caster, self-shadows, static
 scene lookups, the sky task and the probe renders side by side, ``usd_gs.pipeline.shot.run_tasks``)
 give the output of a one-thread run, value for value: two moving avatars, a sphere light, a
-distant light with a dome (self-shadows, the sun atlas and the sky occlusion all run)."""
+distant light with a dome (self-shadows, the sun atlas and the sky occlusion all run). Each frame's
+authoring runs on the main thread beside the next frame's tasks (``run_tasks``' ``meanwhile``)."""
 
 import numba
 import pytest
@@ -103,3 +104,47 @@ def test_sampled_avatar_shadows_stay_close(tmp_path):
     d = dc_difference(outs["full"], outs["sampled"])
     assert stage_differences(outs["full"], outs["sampled"], [1, 2, 3]) and d.max() > 0.0
     assert np.mean(d) < 2.0 / 255, (np.mean(d) * 255, np.max(d) * 255)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_run_tasks_runs_meanwhile_on_the_calling_thread_beside_the_tasks(threads):
+    """``meanwhile`` runs once, on the caller's thread; the results keep the tasks' order; with two
+    threads it runs while a task is still running (the task waits for it), with one before the tasks;
+    an exception in it reaches the caller."""
+    import threading
+
+    from usd_gs.pipeline import shot
+
+    before = numba.get_num_threads()
+    if threads > numba.config.NUMBA_NUM_THREADS:
+        pytest.skip("one CPU thread here: nothing runs side by side")
+    numba.set_num_threads(threads)
+    try:
+        started = threading.Event()
+        seen = []
+
+        def slow():
+            started.set()
+            if threads > 1:  # finishes only once meanwhile has run beside it
+                assert released.wait(10)
+            return "slow"
+
+        released = threading.Event()
+
+        def meanwhile():
+            if threads > 1:
+                started.wait(10)
+            seen.append((threading.current_thread() is threading.main_thread(), started.is_set()))
+            released.set()
+
+        out = shot.run_tasks([slow, lambda: 1, lambda: 2], meanwhile)
+        assert out == ["slow", 1, 2]
+        assert seen == [(True, threads > 1)]
+
+        def bad():
+            raise RuntimeError("meanwhile failed")
+
+        with pytest.raises(RuntimeError, match="meanwhile failed"):
+            shot.run_tasks([lambda: 1, lambda: 2], bad)
+    finally:
+        numba.set_num_threads(before)

@@ -141,17 +141,24 @@ class _MovingCasters:
     receiver_spheres: dict
 
 
-def run_tasks(tasks: list) -> list:
+def run_tasks(tasks: list, meanwhile=None) -> list:
     """The results of ``tasks`` (callables without arguments), in their order: in up to
     ``thread_count()`` threads (the kernels they call run their own chunks in the shared kernel
-    pool, numpy releases the GIL), or one after the other with one thread."""
+    pool, numpy releases the GIL), or one after the other with one thread. ``meanwhile`` (a callable
+    without arguments, or None) runs on the calling thread while the tasks run (with one thread:
+    before them); it must not share state with them."""
     workers = min(len(tasks), thread_count())
     if workers <= 1:
+        if meanwhile is not None:
+            meanwhile()
         return [task() for task in tasks]
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="usdgs-task") as pool:
-        return list(pool.map(lambda task: task(), tasks))
+        futures = [pool.submit(task) for task in tasks]
+        if meanwhile is not None:
+            meanwhile()
+        return [f.result() for f in futures]
 
 
 def _spread_samples(res, prims: list, maps: dict, drecv: Receivers):
@@ -243,6 +250,7 @@ class ShotProcessor:
         self.affected: dict[str, int] = {}
         self.probe_files = 0
         self.lights_used: list[ShotLight] = []
+        self._pending_write = None  # the last frame's authoring, if not done yet (flush_writes)
         self.capture = None  # usd_gs.pipeline.capture_lights.CaptureLights of an estimate
         self.capture_lines: list[str] = []  # what the estimate found (printed by usdgs process)
 
@@ -407,7 +415,8 @@ class ShotProcessor:
 
     # ------------------------------------------------------------------ per frame
     def _frame(self, frame: float, author, probe_dir: Path):
-        """One frame: read what moves, the lights, then the shadow, relighting and authoring passes."""
+        """One frame: read what moves, the lights, then the shadow, relighting and authoring passes.
+        The authoring is left for the next frame's shadow tasks to overlap (:meth:`flush_writes`)."""
         self._frame_now = frame
         t = time.perf_counter()
         dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
@@ -419,18 +428,33 @@ class ShotProcessor:
         jobs = self._relight_jobs(dyn, sets, frame, lights)
         self.clock.add("relight", t)
         # the probe renders and transfers need no shadow map: they run beside the shadow tasks
+        # the previous frame's authoring runs on this thread while this frame's shadow tasks run
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
-                                               [partial(probe_transfer, **job) for _, job in jobs])
+                                               [partial(probe_transfer, **job) for _, job in jobs],
+                                               meanwhile=self.flush_writes)
+        self.flush_writes()  # (a pass without tasks): the output's writes stay in frame order
         t = time.perf_counter()
         relit = self._relight_pass(jobs, transfers, frame, author, probe_dir, lights, shadows)
-        t = self.clock.add("relight", t)
-        self._author_pass(frame, author, sets, shadows, relit)
-        self.clock.add("write", t)
+        self.clock.add("relight", t)
+        direct = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
+        self._pending_write = partial(self._author_pass, frame, author, sets, shadows, relit, direct)
 
-    def _shadow_pass(self, sets: dict, lights: list[ShotLight], extra=()) -> tuple[FrameShadows, list]:
+    def flush_writes(self) -> float:
+        """Author the last processed frame's shadowed and relit SH if not done yet (:meth:`_frame`
+        leaves it for the next frame's shadow tasks to overlap; the run calls this after its last
+        frame). Returns the seconds it took (0 when nothing was pending)."""
+        write, self._pending_write = self._pending_write, None
+        if write is None:
+            return 0.0
+        t = time.perf_counter()
+        write()
+        return self.clock.add("write", t) - t
+
+    def _shadow_pass(self, sets: dict, lights: list[ShotLight], extra=(), meanwhile=None) -> tuple[FrameShadows, list]:
         """Every light's transmittance on every receiver, combined by the lights' shares; ``extra``
         tasks (callables without arguments, e.g. the probe renders) run in the same threads as the
-        shadow tasks. Returns ``(shadows, the extra tasks' results)``."""
+        shadow tasks, ``meanwhile`` (returning its seconds, not counted as the pass's) on this
+        thread while they run (``run_tasks``). Returns ``(shadows, the extra tasks' results)``."""
         clk = self.clock
         t = time.perf_counter()
         srecv = self._static_recv
@@ -453,7 +477,10 @@ class ShotProcessor:
         work = [self._light_tasks(light, sets, drecv, movers) for light in lights]
         extra = list(extra)
         sky = self._sky_task(sets)
-        results = run_tasks(extra + [sky or (lambda: None)] + [task for tasks, _ in work for task in tasks])
+        aside = []
+        results = run_tasks(extra + [sky or (lambda: None)] + [task for tasks, _ in work for task in tasks],
+                            (lambda: aside.append(meanwhile())) if meanwhile is not None else None)
+        t += sum(aside)  # (the shadow pass's clock leaves out what ran beside it)
         extra, shares, results = results[:len(extra)], results[len(extra)], results[len(extra) + 1:]
         start = 0
         for tasks, apply in work:
@@ -838,15 +865,17 @@ class ShotProcessor:
         self.probe_files += write_lights(self, stage, lights, probe_dir / "sky.exr",
                                          f"./{self.final_probe_dir.name}/sky.exr")
 
-    def _author_pass(self, frame: float, author, sets: dict, shadows: FrameShadows, relit: dict) -> None:
+    def _author_pass(self, frame: float, author, sets: dict, shadows: FrameShadows, relit: dict,
+                     f: float) -> None:
         """Static prims only where shadowed now or before; dynamic ones always. Results are
         per-Gaussian colour factors, which commute with SH band rotations: they are applied to the
-        prim-local SH that the attribute holds (the world-space SH are rotated)."""
+        prim-local SH that the attribute holds (the world-space SH are rotated). ``f``: the frame's
+        direct fraction (``usd_gs.shadows.shading``). Reads only its arguments, the shot's static data
+        and the input stage (it runs beside the next frame's shadow tasks)."""
         srecv, drecv = self._static_recv, shadows.drecv
         u, t_static_u, t_dyn = shadows.touched, shadows.t_touched, shadows.t_dyn
         sky_u = shadows.sky_touched if shadows.sky_touched is not None else np.ones(u.size, np.float32)
         affected = []
-        f = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
         paths = self._static_recv_paths
         block = getattr(self, "_static_sh_block", None)
         if block is None:
@@ -1231,6 +1260,7 @@ class ShotProcessor:
                         written_lights = True
                     if bar:
                         bar.update(1)
+                self.flush_writes()  # the last frame's
                 if bar:
                     bar.close()
                 self.clock.add("frames", t_frames)
