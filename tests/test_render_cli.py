@@ -261,3 +261,18 @@ def test_compare_on_an_unprocessed_stage_warns(quick_demo, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "warning:" in err and "cesium_man.usdc" in err
     assert _png(tmp_path / "c.png").shape == (18, 2 * 32 + 4, 3)
+
+
+def test_frames_outside_the_stage_range_warn(processed, tmp_path, capsys):
+    """A frame beyond the stage's time range renders the held values, with a warning naming it and the
+    range; frames inside give none."""
+    out = str(tmp_path / "r_####.png")
+    assert main(["render", str(processed), "-o", out, "--frames", "2,99", "--width", "32"]) == 0
+    err = capsys.readouterr().err
+    from pxr import Usd
+
+    end = Usd.Stage.Open(str(processed)).GetEndTimeCode()
+    assert f"warning: frame(s) 99 outside {processed}'s time range 1..{end:g}" in err
+    assert (tmp_path / "r_0099.png").exists()
+    assert main(["render", str(processed), "-o", str(tmp_path / "s_####.png"), "--frames", "1-2", "--width", "32"]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -80,7 +80,7 @@ def write_exr_rgba(path: str, rgb, alpha) -> None:
 def cmd_render(args) -> int:
     from usd_gs.render.preview import input_stage, render_stage_frame, resolve_camera, side_by_side
     from usd_gs.render.rasterize import write_png
-    from usd_gs.usd.frames import parse_frames
+    from usd_gs.usd.frames import outside_warning, parse_frames
     from usd_gs.usd.stage import open_stage
 
     t_start = time.perf_counter()
@@ -95,6 +95,10 @@ def cmd_render(args) -> int:
     check_pattern(args.output, frames, exr)
     before = input_stage(stage) if args.compare else None
     say = (lambda *a: None) if args.quiet else print
+    outside = (outside_warning(frames, start, stage.GetEndTimeCode(), args.stage)
+               if stage.HasAuthoredTimeCodeRange() else None)
+    if outside and not args.quiet:  # (an 'usdgs process' output spans the frames it processed)
+        print(f"warning: {outside}", file=sys.stderr)
     if before is not None and not stage.GetPrimAtPath("/UsdGs") and not args.quiet:
         # 'usdgs process' always writes /UsdGs (lights, probes); an input stage with data sublayers has none
         print(f"warning: {args.stage} has no /UsdGs prim, so it may not be an 'usdgs process' output; comparing "
