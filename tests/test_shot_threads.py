@@ -120,7 +120,7 @@ def test_run_tasks_runs_meanwhile_on_the_calling_thread_beside_the_tasks(threads
         pytest.skip("one CPU thread here: nothing runs side by side")
     numba.set_num_threads(threads)
     try:
-        started = threading.Event()
+        started, released = threading.Event(), threading.Event()
         seen = []
 
         def slow():
@@ -128,8 +128,6 @@ def test_run_tasks_runs_meanwhile_on_the_calling_thread_beside_the_tasks(threads
             if threads > 1:  # finishes only once meanwhile has run beside it
                 assert released.wait(10)
             return "slow"
-
-        released = threading.Event()
 
         def meanwhile():
             if threads > 1:
