@@ -32,6 +32,14 @@ def block_starts(bounds) -> np.ndarray:
     return np.unique(np.asarray(cuts, np.int64))
 
 
+def within_ball(blocks: PointBlocks | None, positions: np.ndarray, centre, radius: float) -> np.ndarray:
+    """(N,) bool ``within_capsule(positions, centre, centre, radius)``: block by block with ``blocks``
+    (:meth:`PointBlocks.within`), row by row without."""
+    if blocks is None:
+        return within_capsule(positions, centre, centre, radius)
+    return blocks.within(positions, centre, radius)
+
+
 class PointBlocks:
     """The rows ``0 .. starts[-1]`` of a point set in blocks (``starts`` from :func:`block_starts`);
     the positions are passed to each call (the same values every time: the spheres are computed

@@ -44,7 +44,7 @@ from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, s
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.pipeline.shot_cache import ShotCache
 from usd_gs.pipeline.summary import ProcessSummary
-from usd_gs.point_blocks import PointBlocks
+from usd_gs.point_blocks import PointBlocks, within_ball
 from usd_gs.relight.appearance import read_appearance
 from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
@@ -146,7 +146,7 @@ def run_tasks(tasks: list, meanwhile=None) -> list:
     ``thread_count()`` threads (the kernels they call run their own chunks in the shared kernel
     pool, numpy releases the GIL), or one after the other with one thread. ``meanwhile`` (a callable
     without arguments, or None) runs on the calling thread while the tasks run (with one thread:
-    before them); it must not share state with them."""
+    before them; also when there are no tasks); it must not share state with them."""
     workers = min(len(tasks), thread_count())
     if workers <= 1:
         if meanwhile is not None:
@@ -367,15 +367,10 @@ class ShotProcessor:
         (:meth:`_static_part`)."""
         key = ("static set", tuple(paths))
         if key not in self._scene_packs:
-            part = self._static_part() if tuple(paths) == tuple(self.static) else None
-            if part is None:
-                self._scene_packs[key] = Receivers.build([(p, self.static[p]) for p in paths])
-            else:
-                ranges, start = {}, 0
-                for p in paths:
-                    ranges[p] = (start, start + self.static[p].count)
-                    start += self.static[p].count
-                self._scene_packs[key] = Receivers(part[0], ranges)
+            parts = [(p, self.static[p]) for p in paths]
+            shared = self._static_part() if tuple(paths) == tuple(self.static) else None
+            self._scene_packs[key] = (Receivers.build(parts) if shared is None
+                                      else Receivers(shared[0], Receivers.row_ranges(parts)))
         return self._scene_packs[key]
 
     def _point_blocks(self, ranges: dict) -> PointBlocks | None:
@@ -432,7 +427,6 @@ class ShotProcessor:
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
                                                [partial(probe_transfer, **job) for _, job in jobs],
                                                meanwhile=self.flush_writes)
-        self.flush_writes()  # (a pass without tasks): the output's writes stay in frame order
         t = time.perf_counter()
         relit = self._relight_pass(jobs, transfers, frame, author, probe_dir, lights, shadows)
         self.clock.add("relight", t)
@@ -454,7 +448,8 @@ class ShotProcessor:
         """Every light's transmittance on every receiver, combined by the lights' shares; ``extra``
         tasks (callables without arguments, e.g. the probe renders) run in the same threads as the
         shadow tasks, ``meanwhile`` (returning its seconds, not counted as the pass's) on this
-        thread while they run (``run_tasks``). Returns ``(shadows, the extra tasks' results)``."""
+        thread while they run (``run_tasks`` calls it even without tasks). Returns ``(shadows, the
+        extra tasks' results)``."""
         clk = self.clock
         t = time.perf_counter()
         srecv = self._static_recv
@@ -1045,9 +1040,7 @@ class ShotProcessor:
             keep = np.ones(block.count, bool)
             if light.kind == "point":
                 r = max(self.opts.emitter_radius / self.mpu, 3.0 * light.radius)
-                blocks = self._point_blocks(self._scene_block_ranges)
-                keep = ~(blocks.within(block.positions, light.position, r) if blocks is not None else
-                         within_capsule(block.positions, light.position, light.position, r))
+                keep = ~within_ball(self._point_blocks(self._scene_block_ranges), block.positions, light.position, r)
             self._scene_packs[key] = keep
         return self._scene_packs[key]
 

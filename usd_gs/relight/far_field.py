@@ -38,8 +38,7 @@ import threading
 
 import numpy as np
 
-from numba_kernels.capsule import within_capsule
-from usd_gs.point_blocks import PointBlocks
+from usd_gs.point_blocks import PointBlocks, within_ball
 from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_faces
 
 #: far layers kept per relit prim (a prim that moves back and forth between two cells reuses both)
@@ -114,9 +113,7 @@ class FarLayers:
         """(N,) bool: the static Gaussian centres ``static_positions`` (N, 3) (the static part, the
         same every call) within ``radius`` of ``centre``: ``within_capsule``'s values, block by block
         where the store has ``blocks``."""
-        if self.blocks is None:
-            return within_capsule(static_positions, centre, centre, radius)
-        return self.blocks.within(static_positions, centre, radius)
+        return within_ball(self.blocks, static_positions, centre, radius)
 
     def clear(self, static_positions: np.ndarray, anchor: np.ndarray, inner: float, outer: float) -> bool:
         """True when no static Gaussian centre lies farther than ``inner`` and within ``outer`` of

@@ -41,15 +41,20 @@ class Receivers:
     gaussians: GaussianSet
     ranges: dict[str, tuple[int, int]]
 
-    @classmethod
-    def build(cls, parts: list[tuple[str, GaussianSet]]) -> Receivers:
+    @staticmethod
+    def row_ranges(parts: list[tuple[str, GaussianSet]]) -> dict[str, tuple[int, int]]:
+        """Each prim's ``(start, end)`` rows when ``parts`` are concatenated in order."""
         ranges, start = {}, 0
         for path, g in parts:
             ranges[path] = (start, start + g.count)
             start += g.count
+        return ranges
+
+    @classmethod
+    def build(cls, parts: list[tuple[str, GaussianSet]]) -> Receivers:
         sets = [g for _, g in parts]
         merged = GaussianSet.concatenate(sets, label="receivers") if sets else GaussianSet.empty()
-        return cls(merged, ranges)
+        return cls(merged, cls.row_ranges(parts))
 
 
 def _bounding_sphere(ext: np.ndarray) -> tuple[np.ndarray, float]:
