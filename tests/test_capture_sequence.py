@@ -13,7 +13,7 @@ from usd_gs.cli import main
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
 from usd_gs.io.formats import read_capture, write_capture
-from usd_gs.io.sequence import discover_frames, frame_path, is_pattern, parse_frames, sequence_paths
+from usd_gs.io.sequence import discover_frames, folder_pattern, frame_path, is_pattern, parse_frames, sequence_paths
 from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
 MONKEY = DATA / "sequences" / "monkey"
@@ -109,6 +109,25 @@ def test_sequence_errors(tmp_path, capsys):
     code = main(["import", str(tmp_path / "g_####.ply"), "-o", str(tmp_path / "x.usdc")])
     err = capsys.readouterr().err
     assert code == 2 and "g_0002.ply" in err and "SH degree" in err
+
+
+def test_sequence_folder_names_its_pattern(tmp_path, capsys):
+    """A folder of numbered captures given where a capture is expected: the error gives the
+    frame pattern to import (the most common prefix, digit count and ending)."""
+    _frames(tmp_path, [5, 5, 5])  # f_0001.splat .. f_0003.splat
+    write_capture(tmp_path / "other_01.ply", random_set(5, 0))  # one file of another group
+    (tmp_path / "notes_2.txt").write_text("not a capture")
+    assert folder_pattern(tmp_path) == (str(tmp_path / "f_####.splat"), 3)
+    code = main(["import", str(tmp_path), "-o", str(tmp_path / "x.usdc")])
+    err = capsys.readouterr().err
+    assert code == 2 and "not a SOG folder" in err
+    assert f"a frame sequence of 3 files: import it with its frame pattern, '{tmp_path / 'f_####.splat'}'" in err
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    write_capture(lone / "scan_7.ply", random_set(5, 0))
+    assert folder_pattern(lone) is None  # one file is no sequence
+    assert main(["import", str(lone), "-o", str(tmp_path / "y.usdc")]) == 2
+    assert "frame sequence" not in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not MONKEY.exists(), reason="shared data not found (../shared/data)")

@@ -26,7 +26,12 @@ def capture_kind(path) -> str:
     if p.is_dir():
         if (p / "lod-meta.json").is_file() or (p / "meta.json").is_file():
             return "sog"
-        raise UserError(f"{path}: folder holds neither lod-meta.json nor meta.json (not a SOG folder)")
+        from usd_gs.io.sequence import folder_pattern
+
+        seq = folder_pattern(p)
+        hint = (f"; it holds a frame sequence of {seq[1]} files: import it with its frame pattern, "
+                f"'{seq[0]}'" if seq else "")
+        raise UserError(f"{path}: folder holds neither lod-meta.json nor meta.json (not a SOG folder){hint}")
     if name.endswith(".compressed.ply"):
         return "compressed-ply"
     if name.endswith(".ply"):
