@@ -121,6 +121,22 @@ def test_similarity_transform_moves_covariance_and_sh():
     np.testing.assert_allclose(sh3dgs.eval_color(out.sh, d @ rot.T), sh3dgs.eval_color(g.sh, d), atol=2e-5)
 
 
+def test_uniform_scale_keeps_the_sh_bit_for_bit():
+    """A transform without rotation (uniform scale and translation) leaves the SH as they are
+    (``rotate_coefficients``' identity case) and scales the scales."""
+    g = make_set(50, 3)
+    out = g.transformed(usd_matrix(0.5 * np.eye(3), [1.0, 2.0, 3.0]))
+    np.testing.assert_array_equal(out.sh, g.sh)
+    np.testing.assert_allclose(out.scales, 0.5 * g.scales, rtol=1e-6)
+    np.testing.assert_allclose(out.positions, 0.5 * g.positions.astype(np.float64) + [1.0, 2.0, 3.0], atol=1e-6)
+    rot = Rotation.from_euler("xyz", [30, -50, 110], degrees=True).as_matrix()
+    mats = sh3dgs.rotation_matrices_per_band(rot, 3)
+    got = sh3dgs.rotate_coefficients(g.sh, rot)
+    for i in (0, 17, 49):  # each Gaussian's bands times the band matrices, one at a time
+        want = np.concatenate([m @ g.sh[i, b * b:(b + 1) * (b + 1)].astype(np.float64) for b, m in enumerate(mats)])
+        np.testing.assert_allclose(got[i], want, rtol=1e-6, atol=1e-7)
+
+
 def test_reflection_is_a_valid_similarity():
     g = make_set(100, 2)
     flip = np.diag([1.0, -1.0, 1.0])

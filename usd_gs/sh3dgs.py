@@ -122,11 +122,15 @@ def rotate_coefficients(sh: np.ndarray, q: np.ndarray) -> np.ndarray:
     sh = np.asarray(sh)
     degree = degree_from_num_coeffs(sh.shape[1])
     out = sh.copy()
-    if degree == 0:
-        return out
+    if degree == 0 or np.array_equal(np.asarray(q, np.float64), np.eye(3)):
+        return out  # (the identity: every band's matrix is the identity)
+    n = sh.shape[0]
     for band, mat in enumerate(rotation_matrices_per_band(q, degree)):
         if band == 0:
             continue
         s = slice(band * band, (band + 1) * (band + 1))
-        out[:, s, :] = np.einsum("ij,njc->nic", mat, sh[:, s, :].astype(np.float64))
+        k = mat.shape[0]
+        # one (k, k) @ (k, 3N) product per band (BLAS), not N small ones
+        x = np.ascontiguousarray(sh[:, s, :].transpose(1, 0, 2), dtype=np.float64).reshape(k, 3 * n)
+        out[:, s, :] = (mat @ x).reshape(k, n, 3).transpose(1, 0, 2)
     return out

@@ -242,6 +242,8 @@ class ShotProcessor:
         self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._local_sh_cache: dict = {}
+        self._constant: set[str] = set()  # prims with nothing time-sampled (_open)
+        self._held_reads: dict = {}  # their sets, read once (_read)
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
@@ -266,6 +268,8 @@ class ShotProcessor:
         infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime(), shared=shared) for p in prims]
         self.counts = {i.path: i.count for i in infos}
         self.degrees = {i.path: i.sh_degree for i in infos}
+        # prims with nothing time-sampled (data, transforms, skeletal animation): the same set every frame
+        self._constant = {i.path for i in infos if i.time_samples is None}
         self.roles, warnings = resolve_roles(infos, self.opts.scene_paths, self.opts.avatar_paths,
                                              self.opts.object_paths)
         self.warnings += warnings
@@ -281,6 +285,17 @@ class ShotProcessor:
         self.clock.add("open", t0)
 
     def _read(self, path: str, frame: float):
+        """A prim's Gaussians at ``frame``. A prim with nothing time-sampled (e.g. an inserted object
+        or character that holds one pose, processed every frame since what lights it moves) is read
+        once and its set reused at every frame: the same values (sets are never written in place)."""
+        if path not in self._constant:
+            return self._read_usd(path, frame)
+        got = self._held_reads.get(path)
+        if got is None:
+            got = self._held_reads[path] = self._read_usd(path, frame)
+        return got
+
+    def _read_usd(self, path: str, frame: float):
         # (the attribute types were checked by _open's describe_gaussian_prim)
         return read_gaussian_prim(self.prims[path], Usd.TimeCode(frame), check_types=False)
 
@@ -951,13 +966,14 @@ class ShotProcessor:
         """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at
         ``frame``: ``g.sh`` (world space) when the prim's world transform has no rotation or its SH
         have degree 0 (no band to rotate), else
-        read unrotated (once per shot for static prims). A skinned prim's attribute holds the bind
+        read unrotated (once per shot for static prims and those with nothing time-sampled). A
+        skinned prim's attribute holds the bind
         pose: its bind-pose SH (once per shot; the results are per-Gaussian colour factors, which
         commute with the skinning's band rotations)."""
         if path in self._local_sh_cache:  # (holds static and skinned prims only)
             return self._local_sh_cache[path]
         prim = self.prims[path]
-        static = path in self.static
+        static = path in self.static or path in self._constant
         skinned = has_skel_binding(prim)
         tc = Usd.TimeCode.EarliestTime() if static else Usd.TimeCode(frame)
         if skinned:
