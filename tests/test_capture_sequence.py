@@ -12,8 +12,8 @@ from test_capture_formats import random_set
 from usd_gs.cli import main
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet
-from usd_gs.io.formats import read_capture, write_capture
-from usd_gs.io.sequence import discover_frames, folder_pattern, frame_path, is_pattern, parse_frames, sequence_paths
+from usd_gs.io.formats import folder_pattern, read_capture, write_capture
+from usd_gs.io.sequence import discover_frames, frame_path, is_pattern, parse_frames, sequence_paths
 from usd_gs.usd.gaussian_prim import read_gaussian_prim
 
 MONKEY = DATA / "sequences" / "monkey"

@@ -1,23 +1,28 @@
-"""A per-frame prim with nothing time-sampled (an inserted object that holds one pose) is read
-once per run, not at every frame (``ShotProcessor._read``), with the output of reading it at every
-frame."""
+"""A per-frame prim with nothing time-sampled (an inserted object that holds one pose): read once
+per run (``ShotProcessor._read``); as a caster under lights that do not move, packed once and its
+shadows on the static receivers and its own self-shadows computed once (``_caster_task``,
+``_self_task``). The static receivers' values come from a DGSM of theirs alone, so a farm run's
+chunks give the whole run's output, and they stay within the atlas error of the shared per-frame
+DGSM the prim got before."""
 
+import numpy as np
+import pytest
 from farm_compare import stage_differences
 from hardening_util import tiny_shot
 
 import usd_gs.pipeline.shot as shot
 from usd_gs.cli import main
 
+FRAMES = [1, 2, 3]
+
 
 def _shot(path):
-    from pxr import Gf, UsdGeom
+    from pxr import Gf, Usd, UsdGeom
 
     from usd_gs.synthetic import random_gaussians
     from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
 
     tiny_shot(path, n_scene=1200, n_avatar=250, frames=3)
-    from pxr import Usd
-
     stage = Usd.Stage.Open(str(path))
     box = random_gaussians(300, degree=2, seed=4)
     box.positions *= 0.2
@@ -30,8 +35,16 @@ def _shot(path):
     return path
 
 
-def test_constant_object_is_read_once_with_the_same_output(tmp_path, monkeypatch):
-    stage = _shot(tmp_path / "shot.usda")
+ARGS = ["--avatar", "/World/Avatar", "--object", "/World/Box", "--precision", "float", "--sh-tolerance", "0",
+        "--aovs", "transmittance", "-q"]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """The shot, and its output with the held values, chunked, and computed at every frame as before."""
+    tmp = tmp_path_factory.mktemp("constant")
+    stage = _shot(tmp / "shot.usda")
+    mp = pytest.MonkeyPatch()
     reads = []
     plain = shot.read_gaussian_prim
 
@@ -39,30 +52,69 @@ def test_constant_object_is_read_once_with_the_same_output(tmp_path, monkeypatch
         reads.append(str(prim.GetPath()))
         return plain(prim, *a, **k)
 
-    monkeypatch.setattr(shot, "read_gaussian_prim", counted)
-    argv = ["process", str(stage), "--avatar", "/World/Avatar", "--object", "/World/Box", "--precision", "float",
-            "--sh-tolerance", "0", "-q"]
-    assert main([*argv, "-o", str(tmp_path / "once.usdc")]) == 0
-    once = reads.count("/World/Box")
-    moving = reads.count("/World/Avatar")
+    mp.setattr(shot, "read_gaussian_prim", counted)
+    casts = []
+    plain_cast = shot.shared_transmittance
+
+    def cast(g, parts, *a, **k):
+        casts.append((g.count, [None if p is None else len(p[0]) for p in parts]))
+        return plain_cast(g, parts, *a, **k)
+
+    mp.setattr(shot, "shared_transmittance", cast)
+    try:
+        assert main(["process", str(stage), "-o", str(tmp / "held.usdc"), *ARGS]) == 0
+        counts = {"reads": list(reads), "casts": list(casts)}
+        assert main(["process", str(stage), "-o", str(tmp / "chunked.usdc"), "--chunk-size", "1", *ARGS]) == 0
+        reads.clear()
+        opened = shot.ShotProcessor._open
+
+        def every_frame(self):  # as before: no prim counts as constant
+            opened(self)
+            self._constant = set()
+
+        mp.setattr(shot.ShotProcessor, "_open", every_frame)
+        assert main(["process", str(stage), "-o", str(tmp / "each.usdc"), *ARGS]) == 0
+        counts["reads before"] = list(reads)
+    finally:
+        mp.undo()
+    return tmp, counts
+
+
+def test_constant_object_is_read_and_cast_once(runs):
+    _, counts = runs
+    reads = counts["reads"]
     # the object (per-frame: relit and cast every frame) once in world space and once in its own frame
     # (the SH its attribute holds, unrotated, for the output); the avatar at every frame
-    assert once == 2
-    assert moving >= 3
-    reads.clear()
-    opened = shot.ShotProcessor._open
+    assert reads.count("/World/Box") == 2 and reads.count("/World/Avatar") >= 3
+    assert counts["reads before"].count("/World/Box") == 6
+    # the box (300 Gaussians) as a caster: a DGSM of its static receivers once, then one of the moving
+    # receivers (the avatar's 250 Gaussians) per frame, never the shared two-part DGSM of before
+    box = [parts for n, parts in counts["casts"] if n == 300]
+    assert len(box) == 1 + len(FRAMES) and all(len(p) == 1 and p[0] for p in box), box
+    assert box[1:] == [[250]] * len(FRAMES)
 
-    def every_frame(self):  # as before: no prim counts as constant
-        opened(self)
-        self._constant = set()
 
-    monkeypatch.setattr(shot.ShotProcessor, "_open", every_frame)
-    assert main([*argv, "-o", str(tmp_path / "each.usdc")]) == 0
-    assert reads.count("/World/Box") == 6
-    diffs = stage_differences(tmp_path / "once.usdc", tmp_path / "each.usdc", [1, 2, 3])
-    assert diffs == []
+def test_farm_chunks_give_the_whole_run(runs):
+    tmp, _ = runs
+    assert stage_differences(tmp / "held.usdc", tmp / "chunked.usdc", FRAMES) == []
+
+
+def test_values_within_the_atlas_error_of_the_shared_dgsm(runs):
     from pxr import Usd
 
-    out = Usd.Stage.Open(str(tmp_path / "once.usdc"))
-    sh = out.GetPrimAtPath("/World/Box").GetAttribute("radiance:sphericalHarmonicsCoefficients")
-    assert sh.GetTimeSamples() == [1.0, 2.0, 3.0]  # relit at every frame (the avatar moves beside it)
+    tmp, _ = runs
+    held, each = (Usd.Stage.Open(str(tmp / n)) for n in ("held.usdc", "each.usdc"))
+    worst, shadowed = 0.0, 0
+    for prim in held.Traverse():
+        attr = prim.GetAttribute("primvars:usdgs:transmittance")
+        if not attr or not attr.GetTimeSamples():
+            continue
+        other = each.GetPrimAtPath(prim.GetPath()).GetAttribute("primvars:usdgs:transmittance")
+        for t in FRAMES:
+            a, b = np.asarray(attr.Get(t)), np.asarray(other.Get(t))
+            worst = max(worst, float(np.abs(a - b).max()))
+            shadowed += int(np.count_nonzero(a < 0.99))
+    assert shadowed > 100  # the box and the avatar do shadow the room
+    # another ROI and bin range than the shared DGSM's: within the DGSM's per-receiver max error (0.05,
+    # usd_gs.shadows.dgsm's defaults)
+    assert worst < 0.05

@@ -9,6 +9,8 @@ LOD sets ``lod-meta.json``, or a folder holding one of those). Writable: ``.ply`
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 
 from usd_gs.errors import InputFormatError, UserError
@@ -19,6 +21,34 @@ WRITE_EXTS = (".ply", ".splat", ".spz", ".sog")
 READ_HELP = ".ply, .compressed.ply, .splat, .spz, .sog, meta.json, lod-meta.json or a SOG folder"
 
 
+#: name endings of the capture files a frame sequence may be made of (:func:`folder_pattern`)
+CAPTURE_ENDINGS = (".compressed.ply", ".ply", ".splat", ".spz", ".sog")
+_NUMBERED = re.compile(r"(.*?)(\d+)(" + "|".join(re.escape(e) for e in CAPTURE_ENDINGS) + r")\Z", re.IGNORECASE)
+
+
+def folder_pattern(folder) -> tuple[str, int] | None:
+    """``(pattern, file count)`` of the frame sequence a folder holds: its capture files named
+    ``<prefix><frame number><ending>`` with one prefix, ending and digit count (the most common
+    when several), as a ``####`` pattern inside ``folder`` (``usd_gs.io.sequence``); None when
+    fewer than two such files."""
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return None
+    groups: dict[tuple[str, int, str], int] = {}
+    for name in names:
+        m = _NUMBERED.match(name)
+        if m:
+            key = (m.group(1), len(m.group(2)), m.group(3))
+            groups[key] = groups.get(key, 0) + 1
+    if not groups:
+        return None
+    (prefix, width, ending), count = max(groups.items(), key=lambda kv: (kv[1], kv[0]))
+    if count < 2:
+        return None
+    return os.path.join(str(folder), prefix + "#" * width + ending), count
+
+
 def capture_kind(path) -> str:
     """The reader for ``path``: one of :data:`READ_KINDS`; ``UserError`` for anything else."""
     p = Path(path)
@@ -26,8 +56,6 @@ def capture_kind(path) -> str:
     if p.is_dir():
         if (p / "lod-meta.json").is_file() or (p / "meta.json").is_file():
             return "sog"
-        from usd_gs.io.sequence import folder_pattern
-
         seq = folder_pattern(p)
         hint = (f"; it holds a frame sequence of {seq[1]} files: import it with its frame pattern, "
                 f"'{seq[0]}'" if seq else "")

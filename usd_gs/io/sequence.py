@@ -77,33 +77,6 @@ def discover_frames(pattern: str) -> tuple[int, int]:
     return frames[0], frames[-1]
 
 
-#: name endings of the capture files a sequence folder may hold (:func:`folder_pattern`)
-CAPTURE_ENDINGS = (".compressed.ply", ".ply", ".splat", ".spz", ".sog")
-_NUMBERED = re.compile(r"(.*?)(\d+)(" + "|".join(re.escape(e) for e in CAPTURE_ENDINGS) + r")\Z", re.IGNORECASE)
-
-
-def folder_pattern(folder) -> tuple[str, int] | None:
-    """``(pattern, file count)`` of the frame sequence a folder holds: its capture files named
-    ``<prefix><frame number><ending>`` with one prefix, ending and digit count (the most common
-    when several), as a ``####`` pattern inside ``folder``; None when fewer than two such files."""
-    try:
-        names = os.listdir(folder)
-    except OSError:
-        return None
-    groups: dict[tuple[str, int, str], int] = {}
-    for name in names:
-        m = _NUMBERED.match(name)
-        if m:
-            key = (m.group(1), len(m.group(2)), m.group(3))
-            groups[key] = groups.get(key, 0) + 1
-    if not groups:
-        return None
-    (prefix, width, ending), count = max(groups.items(), key=lambda kv: (kv[1], kv[0]))
-    if count < 2:
-        return None
-    return os.path.join(str(folder), prefix + "#" * width + ending), count
-
-
 def sequence_paths(pattern: str, frames: tuple[int, int] | None = None) -> list[tuple[int, str]]:
     """``[(frame, path)]`` for frames ``A..B`` (default: the range found on disk).
 

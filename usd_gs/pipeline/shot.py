@@ -195,6 +195,12 @@ def _self_shadow_task(g, part, light, cfg: DGSMConfig, buffers=None):
     return idx, val
 
 
+def _light_key(light) -> bytes:
+    """What a light's shadows depend on (its kind, position and direction), as a dict key."""
+    return light.kind.encode() + np.asarray(light.position, np.float64).tobytes() + \
+        np.asarray(light.direction, np.float64).tobytes()
+
+
 def _scene_task(block, drecv: Receivers, light, cfg: DGSMConfig, bias: float, atlas):
     """``(idx, T)`` of the moving receivers in the static scene's shot-long ``atlas``, or None."""
     part = receiver_points(block, drecv, light, cfg, roi="all", bias=bias)
@@ -244,6 +250,9 @@ class ShotProcessor:
         self._local_sh_cache: dict = {}
         self._constant: set[str] = set()  # prims with nothing time-sampled (_open)
         self._held_reads: dict = {}  # their sets, read once (_read)
+        self._held_packs: dict = {}  # their packed occluders as casters (_packed_caster)
+        # their shadows under each light that does not move: (kind, prim, light key) -> (idx, T)
+        self._held_shadows: dict = {}
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
@@ -472,8 +481,10 @@ class ShotProcessor:
         t = clk.add("prepare", t)
 
         cfg = self.dgsm
-        packed = {q: prepare_occluders(sets[q], cfg, self._pack_buffers(q, "cast", sets[q].count))
-                  for q in self._casters_dyn} if lights else {}
+        packed = {q: self._packed_caster(q, sets[q]) for q in self._casters_dyn} if lights else {}
+        # what casters with nothing time-sampled gave under lights that are no longer used
+        keys = {_light_key(lt) for lt in lights}
+        self._held_shadows = {k: v for k, v in self._held_shadows.items() if k[2] in keys}
         # bounding spheres of the moving prims (one threaded pass over the receivers; the same
         # values as occluder_sphere), for prim-level culling against each caster's beam, as for the bricks
         rspheres = prim_spheres(drecv, cfg.k_sigma) if packed else {}
@@ -557,7 +568,6 @@ class ShotProcessor:
         combines the tasks' results in a fixed order into ``(static transmittance, moving
         transmittance, the static receivers some caster shadows)``, the same values whether the
         tasks ran one after the other or side by side."""
-        cfg = self.dgsm
         srecv = self._static_recv
         tasks, steps = [], []
         for q in self._casters_dyn:
@@ -568,11 +578,9 @@ class ShotProcessor:
             # on the outdoor ground truth kappa 1 / 0.5 / 0.25 give 29.1 / 30.4 / 32.0 dB (exact
             # visibility 41.8 dB): the overlapping splats of one skin layer over-absorb for the
             # points just above it
-            part_o = self._self_points(q, sets[q], drecv, light)
-            if part_o is not None:
-                cfg_o = replace(cfg, kappa=self.opts.self_shadow_kappa)
-                tasks.append(partial(_self_shadow_task, sets[q], part_o, light, cfg_o,
-                                     self._pack_buffers(q, ("self", id(light)), sets[q].count)))
+            task = self._self_task(q, sets[q], drecv, light)
+            if task is not None:
+                tasks.append(task)
                 steps.append(("self", q))
         block = self._scene_block
         if block is not None and block.count:
@@ -627,19 +635,63 @@ class ShotProcessor:
         cfg = self.dgsm
         srecv = self._static_recv
         bound = movers.bound[q]
-        hit = prims_in_shadow(self._spheres, g, light, cfg.k_sigma, bound)
+        held = ("cast", q, _light_key(light)) if q in self._constant else None
+        res_s = self._held_shadows.get(held) if held is not None else None
         part_s = None
-        if hit:
-            cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
-            part_s = receiver_points(g, srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
+        if res_s is None:
+            hit = prims_in_shadow(self._spheres, g, light, cfg.k_sigma, bound)
+            if hit:
+                cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
+                part_s = receiver_points(g, srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
         part_d = None
         dhit = [p for p in prims_in_shadow(movers.receiver_spheres, g, light, cfg.k_sigma, bound) if p != q]
         maps = {p: self._receiver_sample_map(p, drecv) for p in dhit}
         if dhit:
             cand = np.concatenate([drecv.ranges[p][0] + maps[p][0] for p in dhit])
             part_d = receiver_points(g, drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
-        res_s, res_d = shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed[q])
+        if held is None:
+            res_s, res_d = shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed[q])
+        else:
+            # a caster that does not move under a light that does not move: its shadows on the static
+            # receivers are the same at every frame, from a DGSM of those receivers alone (one per shot:
+            # a chunk of a farm run gets the whole run's values); the moving receivers' from their own
+            if res_s is None:
+                res_s = self._held_shadows[held] = shared_transmittance(g, [part_s], light, cfg, movers.packed[q])[0]
+            res_d = shared_transmittance(g, [part_d], light, cfg, movers.packed[q])[0]
         return res_s, _spread_samples(res_d, dhit, maps, drecv)
+
+    def _packed_caster(self, q: str, g):
+        """Moving caster ``q``'s packed occluders for this frame (``prepare_occluders``), written into
+        its shot-long buffers; once per shot for a prim with nothing time-sampled."""
+        if q in self._constant and q in self._held_packs:
+            return self._held_packs[q]
+        got = prepare_occluders(g, self.dgsm, self._pack_buffers(q, "cast", g.count))
+        if q in self._constant:
+            self._held_packs[q] = got
+        return got
+
+    def _self_task(self, q: str, g, drecv: Receivers, light):
+        """The task giving ``(idx, T)`` of relit prim ``q``'s self-shadow samples through its own DGSM
+        for ``light`` (``idx`` in ``drecv``), or None (no self-shadowing). For a prim with nothing
+        time-sampled under a light that does not move, computed once per shot and held."""
+        held = ("self", q, _light_key(light)) if q in self._constant else None
+        a = drecv.ranges[q][0] if q in drecv.ranges else 0
+        got = self._held_shadows.get(held) if held is not None else None
+        if got is not None:
+            return lambda: (a + got[0], got[1])
+        part_o = self._self_points(q, g, drecv, light)
+        if part_o is None:
+            return None
+        cfg_o = replace(self.dgsm, kappa=self.opts.self_shadow_kappa)
+        buffers = self._pack_buffers(q, ("self", id(light)), g.count)
+
+        def task():
+            idx, val = _self_shadow_task(g, part_o, light, cfg_o, buffers)
+            if held is not None:  # (relative to the prim's first row: other prims' counts may change)
+                self._held_shadows[held] = (idx - a, val)
+            return idx, val
+
+        return task
 
     def _receiver_sample_map(self, p: str, drecv: Receivers):
         """``(sel, nearest)`` of moving receiver ``p`` for the shadows other moving casters put on it
