@@ -60,3 +60,20 @@ def test_untouched_prim_gets_no_samples():
         author.receiver("/P", f, np.ones(4, np.float32), np.ones((4, 1, 3), np.float32), np.ones((4, 1, 3), np.float32))
     assert not stage.GetPrimAtPath("/P")
     assert author.samples_written == 0
+
+
+def test_same_values_is_array_equal_block_by_block(monkeypatch):
+    import usd_gs.usd.output_author as oa
+
+    monkeypatch.setattr(oa, "_SAME_BLOCK", 64)  # several blocks in a small array
+    rng = np.random.default_rng(5)
+    a = rng.standard_normal((100, 9, 3)).astype(np.float16)
+    cases = {"equal": a.copy(), "first": a.copy(), "last": a.copy(), "nan": a.copy()}
+    cases["first"][0, 0, 0] += 1
+    cases["last"][-1, -1, -1] += 1
+    cases["nan"][50, 4, 1] = np.nan
+    for name, b in cases.items():
+        assert oa.same_values(a, b) == np.array_equal(a, b) == (name == "equal"), name
+    assert not oa.same_values(cases["nan"], cases["nan"])  # NaN differs from itself, as in np.array_equal
+    assert not oa.same_values(a, a[:99]) and not oa.same_values(a, a.reshape(-1, 3))
+    assert oa.same_values(a[:0], a[:0]) and oa.same_values(a[:, :3], a[:, :3].copy())  # empty; non-contiguous

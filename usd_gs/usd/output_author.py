@@ -53,7 +53,7 @@ def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
     k = a.shape[1]
     bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
     ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
-    d = np.abs(a.astype(np.float32) - b.astype(np.float32))
+    d = np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))  # (no copies of float32 inputs)
     return float(np.max(np.einsum("nkc,k->nc", d, ymax), initial=0.0))
 
 
@@ -64,7 +64,7 @@ def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.
     k = a.shape[1]
     bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
     ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
-    d = np.abs(a.astype(np.float32) - b.astype(np.float32))
+    d = np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))
     rows = np.einsum("nkc,k->nc", d, ymax).max(axis=1, initial=0.0)
     counts = np.diff(offsets)
     out = np.zeros(len(counts), np.float64)
@@ -72,6 +72,20 @@ def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.
     if full.any():
         out[full] = np.maximum.reduceat(rows, offsets[:-1][full])
     return out
+
+
+#: elements compared at a time by :func:`same_values` (a change is usually found in the first block)
+_SAME_BLOCK = 1 << 18
+
+
+def same_values(a: np.ndarray, b: np.ndarray) -> bool:
+    """``np.array_equal(a, b)``, block by block: an array that changed (the usual case for a moving
+    prim's SH) is told apart in its first differing block, not after a pass over the whole array."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape:
+        return False
+    fa, fb = a.reshape(-1), b.reshape(-1)
+    return all(np.array_equal(fa[i:i + _SAME_BLOCK], fb[i:i + _SAME_BLOCK]) for i in range(0, fa.size, _SAME_BLOCK))
 
 
 _HALF_MAX = float(np.finfo(np.float16).max)
@@ -175,9 +189,9 @@ class OutputAuthor:
         track = self._tracks.setdefault(key, _Track())
         value = np.ascontiguousarray(value)
         reference = track.last if track.started else unaffected
-        if reference is not None and np.array_equal(value, reference):
+        if reference is not None and same_values(value, reference):
             return False  # unchanged, or still unaffected: nothing to author
-        track.clean = unaffected is not None and np.array_equal(value, unaffected)
+        track.clean = unaffected is not None and same_values(value, unaffected)
         from pxr import Sdf
 
         attr = make_attr() if make_attr else self._attr(prim_path, name, type_name, primvar, element_size)
@@ -258,7 +272,7 @@ class OutputAuthor:
             return _to_half(sh_in.reshape(shape), prim_path)
         bits = np.ascontiguousarray(sh_in).reshape(shape).view(np.uint32)
         got = self._halves.get(prim_path)
-        if got is not None and got[0].shape == bits.shape and np.array_equal(got[0], bits):
+        if got is not None and same_values(got[0], bits):
             return got[1]
         half = _to_half(sh_in.reshape(shape), prim_path)
         self._halves[prim_path] = (bits.copy(), half)
