@@ -1,7 +1,7 @@
 """A per-frame prim with nothing time-sampled (an inserted object that holds one pose): read once
 per run (``ShotProcessor._read``); as a caster under lights that do not move, packed once and its
-shadows on the static receivers and its own self-shadows computed once (``_caster_task``,
-``_self_task``). The static receivers' values come from a DGSM of theirs alone, so a farm run's
+shadows on the static receivers, its own self-shadows and the static scene's shadows on it computed
+once (``_caster_task``, ``_self_task``, ``_scene_shadow_task``). The static receivers' values come from a DGSM of theirs alone, so a farm run's
 chunks give the whole run's output, and they stay within the atlas error of the shared per-frame
 DGSM the prim got before."""
 
@@ -61,9 +61,17 @@ def runs(tmp_path_factory):
         return plain_cast(g, parts, *a, **k)
 
     mp.setattr(shot, "shared_transmittance", cast)
+    scene = []
+    plain_scene = shot._scene_task
+
+    def scene_task(block, drecv, light, cfg, bias, atlas, candidates=None):
+        scene.append(drecv.gaussians.count if candidates is None else len(candidates))
+        return plain_scene(block, drecv, light, cfg, bias, atlas, candidates)
+
+    mp.setattr(shot, "_scene_task", scene_task)
     try:
         assert main(["process", str(stage), "-o", str(tmp / "held.usdc"), *ARGS]) == 0
-        counts = {"reads": list(reads), "casts": list(casts)}
+        counts = {"reads": list(reads), "casts": list(casts), "scene": list(scene)}
         assert main(["process", str(stage), "-o", str(tmp / "chunked.usdc"), "--chunk-size", "1", *ARGS]) == 0
         reads.clear()
         opened = shot.ShotProcessor._open
@@ -92,6 +100,8 @@ def test_constant_object_is_read_and_cast_once(runs):
     box = [parts for n, parts in counts["casts"] if n == 300]
     assert len(box) == 1 + len(FRAMES) and all(len(p) == 1 and p[0] for p in box), box
     assert box[1:] == [[250]] * len(FRAMES)
+    # the static scene's shadows on the moving receivers: the avatar's 250 every frame, the box's 300 once
+    assert counts["scene"] == [250, 300] + [250] * (len(FRAMES) - 1)
 
 
 def test_farm_chunks_give_the_whole_run(runs):

@@ -201,9 +201,10 @@ def _light_key(light) -> bytes:
         np.asarray(light.direction, np.float64).tobytes()
 
 
-def _scene_task(block, drecv: Receivers, light, cfg: DGSMConfig, bias: float, atlas):
-    """``(idx, T)`` of the moving receivers in the static scene's shot-long ``atlas``, or None."""
-    part = receiver_points(block, drecv, light, cfg, roi="all", bias=bias)
+def _scene_task(block, drecv: Receivers, light, cfg: DGSMConfig, bias: float, atlas, candidates=None):
+    """``(idx, T)`` of the moving receivers (``candidates``: those rows of ``drecv`` only) in the
+    static scene's shot-long ``atlas``, or None."""
+    part = receiver_points(block, drecv, light, cfg, roi="all", bias=bias, candidates=candidates)
     if part is None:
         return None
     return part[0], atlas.transmittance(part[1])
@@ -585,8 +586,7 @@ class ShotProcessor:
         block = self._scene_block
         if block is not None and block.count:
             atlas = self._static_atlas(light) if light.kind == "point" else self._static_sun_atlas(light)
-            tasks.append(partial(_scene_task, block, drecv, light, self._centre_cfg, self.opts.contact_bias / self.mpu,
-                                 atlas))
+            tasks.append(self._scene_shadow_task(block, drecv, light, atlas))
             steps.append(("scene", None))
 
         def apply(results):
@@ -659,6 +659,37 @@ class ShotProcessor:
                 res_s = self._held_shadows[held] = shared_transmittance(g, [part_s], light, cfg, movers.packed[q])[0]
             res_d = shared_transmittance(g, [part_d], light, cfg, movers.packed[q])[0]
         return res_s, _spread_samples(res_d, dhit, maps, drecv)
+
+    def _scene_shadow_task(self, block, drecv: Receivers, light, atlas):
+        """The task giving ``(idx, T)`` of the moving receivers in the static scene's shot-long
+        ``atlas`` (``_scene_task``), or None. A receiver prim with nothing time-sampled takes its
+        values once per light and holds them (their values do not depend on what else is looked up)."""
+        cfg, bias = self._centre_cfg, self.opts.contact_bias / self.mpu
+        held = [p for p in drecv.ranges if p in self._constant]
+        if not held:
+            return partial(_scene_task, block, drecv, light, cfg, bias, atlas)
+        key = _light_key(light)
+        rows = [np.arange(*drecv.ranges[p]) for p in drecv.ranges if p not in self._constant]
+        moving = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+
+        def task():
+            parts = []
+            if moving.size:
+                parts.append(_scene_task(block, drecv, light, cfg, bias, atlas, moving))
+            for p in held:
+                a, b = drecv.ranges[p]
+                got = self._held_shadows.get(("scene", p, key))
+                if got is None:  # (relative to the prim's first row: other prims' counts may change)
+                    res = _scene_task(block, drecv, light, cfg, bias, atlas, np.arange(a, b))
+                    got = (np.zeros(0, np.int64), np.zeros(0)) if res is None else (res[0] - a, res[1])
+                    self._held_shadows[("scene", p, key)] = got
+                parts.append((a + got[0], got[1]))
+            parts = [r for r in parts if r is not None]
+            if not parts:
+                return None
+            return np.concatenate([r[0] for r in parts]), np.concatenate([r[1] for r in parts])
+
+        return task
 
     def _packed_caster(self, q: str, g):
         """Moving caster ``q``'s packed occluders for this frame (``prepare_occluders``), written into
