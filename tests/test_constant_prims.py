@@ -1,9 +1,10 @@
 """A per-frame prim with nothing time-sampled (an inserted object that holds one pose): read once
-per run (``ShotProcessor._read``); as a caster under lights that do not move, packed once and its
-shadows on the static receivers, its own self-shadows and the static scene's shadows on it computed
-once (``_caster_task``, ``_self_task``, ``_scene_shadow_task``). The static receivers' values come from a DGSM of theirs alone, so a farm run's
-chunks give the whole run's output, and they stay within the atlas error of the shared per-frame
-DGSM the prim got before."""
+per run (``ShotProcessor._read``); as a caster under lights that do not move, packed once, and its
+shadows on the static receivers, its own self-shadows, the sky it hides and the static scene's
+shadows on it computed once (``_caster_task``, ``_self_task``, ``_sky_task``,
+``_scene_shadow_task``). The static receivers' values come from a DGSM of theirs alone, so a farm
+run's chunks give the whole run's output, and they stay within the atlas error of the shared
+per-frame DGSM the prim got before."""
 
 import numpy as np
 import pytest
@@ -128,3 +129,44 @@ def test_values_within_the_atlas_error_of_the_shared_dgsm(runs):
     # another ROI and bin range than the shared DGSM's: within the DGSM's per-receiver max error (0.05,
     # usd_gs.shadows.dgsm's defaults)
     assert worst < 0.05
+
+
+def test_sky_a_constant_caster_hides_is_computed_once(tmp_path, monkeypatch):
+    """Under a sun and a sky: the sky the box hides from the static receivers once per run, with
+    the values of computing it at every frame."""
+    from pxr import Gf, Usd, UsdGeom, UsdLux
+
+    from usd_gs.usd.gaussian_prim import save_stage_atomic
+
+    stage_path = _shot(tmp_path / "sky.usda")
+    stage = Usd.Stage.Open(str(stage_path))
+    stage.RemovePrim("/World/Lamp")
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(3.0)
+    UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-55.0, 30.0, 0.0))
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.5)
+    save_stage_atomic(stage, stage_path)
+    calls, reached = [], []
+    plain = shot.caster_hidden_parts
+
+    def parts(caster, *a, **k):
+        got = plain(caster, *a, **k)
+        calls.append(caster.count)
+        reached.append(sum(len(i) for i, _ in got) if caster.count == 300 else 0)
+        return got
+
+    monkeypatch.setattr(shot, "caster_hidden_parts", parts)
+    argv = ["process", str(stage_path), "--lights", "stage", *ARGS]
+    assert main([*argv, "-o", str(tmp_path / "held.usdc")]) == 0
+    assert calls.count(300) == 1 and calls.count(250) == len(FRAMES)  # the box once, the avatar every frame
+    assert max(reached) > 100  # the box does hide sky from the room's receivers around it
+    opened = shot.ShotProcessor._open
+
+    def every_frame(self):
+        opened(self)
+        self._constant = set()
+
+    monkeypatch.setattr(shot.ShotProcessor, "_open", every_frame)
+    assert main([*argv, "-o", str(tmp_path / "each.usdc")]) == 0
+    assert calls.count(300) == 1 + len(FRAMES)
+    assert stage_differences(tmp_path / "held.usdc", tmp_path / "each.usdc", FRAMES) == []

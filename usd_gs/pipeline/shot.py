@@ -63,7 +63,13 @@ from usd_gs.shadows.shot import (
     receiver_points,
     shared_transmittance,
 )
-from usd_gs.shadows.sky_occlusion import hidden_sky_shares, receiver_normals, sky_factors_from_shares
+from usd_gs.shadows.sky_occlusion import (
+    caster_hidden_parts,
+    combine_hidden_parts,
+    min_hidden_share,
+    receiver_normals,
+    sky_factors_from_shares,
+)
 from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, BlockExtents, StaticSceneAtlas, StaticSceneSunAtlas
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
@@ -254,6 +260,7 @@ class ShotProcessor:
         self._held_packs: dict = {}  # their packed occluders as casters (_packed_caster)
         # their shadows under each light that does not move: (kind, prim, light key) -> (idx, T)
         self._held_shadows: dict = {}
+        self._held_sky: dict = {}  # (prim, smallest hidden share kept) -> the sky it hides (_sky_task)
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
@@ -539,8 +546,25 @@ class ShotProcessor:
         if self._static_normals is None:  # once per shot: the static receivers do not move
             g = self._static_recv.gaussians
             self._static_normals = receiver_normals(g, np.arange(g.count))
-        return partial(hidden_sky_shares, [sets[q] for q in self._casters_dyn], self._static_recv, self._spheres, up,
-                       params, self.opts.sh_tolerance, normals=self._static_normals)
+        h_min = min_hidden_share(params, self.opts.sh_tolerance)
+        if h_min >= 1.0:
+            return lambda: (np.zeros(0, np.int64), np.zeros(0, np.float32))
+        # a caster with nothing time-sampled hides the same sky at every frame: its parts are held
+        self._held_sky = {k: v for k, v in self._held_sky.items() if k[1] == h_min}
+        srecv, spheres, normals = self._static_recv, self._spheres, self._static_normals
+
+        def task():
+            parts = []
+            for q in self._casters_dyn:
+                got = self._held_sky.get((q, h_min)) if q in self._constant else None
+                if got is None:
+                    got = caster_hidden_parts(sets[q], srecv, spheres, up, h_min, normals)
+                    if q in self._constant:
+                        self._held_sky[(q, h_min)] = got
+                parts.extend(got)
+            return combine_hidden_parts(parts, h_min)
+
+        return task
 
     def _sky_hidden(self, shares, u: np.ndarray, t_u: np.ndarray):
         """``(touched, their transmittance, their sky factor or None)`` from :meth:`_sky_task`'s

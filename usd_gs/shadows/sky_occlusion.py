@@ -148,37 +148,49 @@ def hidden_sky_shares(casters: list[GaussianSet], receivers, prim_spheres: dict,
                       normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The first half of :func:`static_sky_factors` (same arguments, no ``sun_t``; it needs no
     shadow map): ``(idx (K,) int64 sorted receiver indices, h (K,) float64)``, the share of each
-    receiver's sky the casters hide, for the receivers where it reaches :func:`min_hidden_share`."""
-    g = receivers.gaussians
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32))
+    receiver's sky the casters hide, for the receivers where it reaches :func:`min_hidden_share`
+    (:func:`caster_hidden_parts` of each caster, :func:`combine_hidden_parts`)."""
     h_min = min_hidden_share(params, tolerance)
-    if g.count == 0 or h_min >= 1.0:
-        return empty
-    parts_i, parts_h = [], []
-    for c in casters:
-        centres, radii = sphere_proxy(c, up)
-        if radii.size == 0:
+    if receivers.gaussians.count == 0 or h_min >= 1.0:
+        return np.zeros(0, np.int64), np.zeros(0, np.float32)
+    parts = [part for c in casters for part in caster_hidden_parts(c, receivers, prim_spheres, up, h_min, normals)]
+    return combine_hidden_parts(parts, h_min)
+
+
+def caster_hidden_parts(caster: GaussianSet, receivers, prim_spheres: dict, up: np.ndarray, h_min: float,
+                        normals: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """One caster's ``(receiver indices, hidden share)`` per receiver prim within its reach of
+    ``h_min`` (arguments as :func:`hidden_sky_shares`): what :func:`combine_hidden_parts` adds up."""
+    g = receivers.gaussians
+    centres, radii = sphere_proxy(caster, up)
+    if radii.size == 0:
+        return []
+    r_far = reach(radii, h_min)
+    mid = centres.mean(axis=0)
+    span = float(np.max(np.linalg.norm(centres - mid, axis=1) + radii))
+    parts = []
+    for path, (a, b) in receivers.ranges.items():
+        sc, sr = prim_spheres.get(path, (None, None))
+        if sc is None or np.linalg.norm(np.asarray(sc) - mid) > sr + span + r_far:
             continue
-        r_far = reach(radii, h_min)
-        mid = centres.mean(axis=0)
-        span = float(np.max(np.linalg.norm(centres - mid, axis=1) + radii))
-        for path, (a, b) in receivers.ranges.items():
-            sc, sr = prim_spheres.get(path, (None, None))
-            if sc is None or np.linalg.norm(np.asarray(sc) - mid) > sr + span + r_far:
-                continue
-            x = g.positions[a:b].astype(np.float64)
-            v = x - mid
-            near = np.flatnonzero(np.einsum("ij,ij->i", v, v) <= (span + r_far) ** 2)
-            if near.size == 0:
-                continue
-            idx = a + near
-            parts_i.append(idx)
-            parts_h.append(hidden_sky_share(centres, radii, x[near],
-                                            normals[idx] if normals is not None else receiver_normals(g, idx)))
-    if not parts_i:
-        return empty
-    idx, inv = np.unique(np.concatenate(parts_i), return_inverse=True)  # sorted; casters' shares add
-    h = np.minimum(np.bincount(inv, weights=np.concatenate(parts_h), minlength=idx.size), 1.0)
+        x = g.positions[a:b].astype(np.float64)
+        v = x - mid
+        near = np.flatnonzero(np.einsum("ij,ij->i", v, v) <= (span + r_far) ** 2)
+        if near.size == 0:
+            continue
+        idx = a + near
+        parts.append((idx, hidden_sky_share(centres, radii, x[near],
+                                            normals[idx] if normals is not None else receiver_normals(g, idx))))
+    return parts
+
+
+def combine_hidden_parts(parts: list, h_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(idx, h)`` of :func:`hidden_sky_shares` from its casters' :func:`caster_hidden_parts`, in
+    order (the casters' shares add, clipped at 1; only ``h >= h_min`` kept)."""
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.float32)
+    idx, inv = np.unique(np.concatenate([i for i, _ in parts]), return_inverse=True)  # sorted
+    h = np.minimum(np.bincount(inv, weights=np.concatenate([h for _, h in parts]), minlength=idx.size), 1.0)
     keep = h >= h_min
     return idx[keep], h[keep]
 
