@@ -77,3 +77,17 @@ def test_same_values_is_array_equal_block_by_block(monkeypatch):
     assert not oa.same_values(cases["nan"], cases["nan"])  # NaN differs from itself, as in np.array_equal
     assert not oa.same_values(a, a[:99]) and not oa.same_values(a, a.reshape(-1, 3))
     assert oa.same_values(a[:0], a[:0]) and oa.same_values(a[:, :3], a[:, :3].copy())  # empty; non-contiguous
+
+
+def test_sh_display_within_is_the_bound_below_the_tolerance_block_by_block(monkeypatch):
+    import usd_gs.usd.output_author as oa
+
+    monkeypatch.setattr(oa, "_SAME_BLOCK", 60)  # blocks of 2 rows of (10, 3)
+    rng = np.random.default_rng(8)
+    a = rng.standard_normal((41, 10, 3)).astype(np.float32)
+    tol = 1.0 / 512.0
+    for row, step in ((0, 0.0), (0, 1e-4), (40, 1e-4), (40, 0.01), (17, 0.01), (5, np.nan)):
+        b = a.copy()
+        b[row, 3, 2] += step
+        assert oa.sh_display_within(a, b, tol) == (oa.sh_display_change(a, b) < tol), (row, step)
+    assert oa.sh_display_within(a[:0], a[:0], tol)

@@ -57,6 +57,13 @@ def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.einsum("nkc,k->nc", d, ymax), initial=0.0))
 
 
+def sh_display_within(a: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
+    """``sh_display_change(a, b) < tolerance``, block by block of rows: SH that changed (the usual
+    case for a moving or relit prim) are told apart in their first block that moved."""
+    step = max(1, _SAME_BLOCK // max(1, a[0].size if len(a) else 1))
+    return all(sh_display_change(a[i:i + step], b[i:i + step]) < tolerance for i in range(0, len(a), step))
+
+
 def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """(P,) float64: :func:`sh_display_change` of each prim's rows ``offsets[i]:offsets[i + 1]`` of
     ``a``, ``b`` (M, K, 3), in one pass (0 for a prim without rows)."""
@@ -251,7 +258,7 @@ class OutputAuthor:
         if "transmittance" in self.aovs:
             changed = self._put(prim_path, TRANSMITTANCE, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray,
                                 transmittance.astype(np.float32), np.ones(n, np.float32), frame, True)
-        if self.sh_tolerance > 0.0 and sh_display_change(sh_out, sh_in) < self.sh_tolerance:
+        if self.sh_tolerance > 0.0 and sh_display_within(sh_out, sh_in, self.sh_tolerance):
             sh_out = sh_in  # within the tolerance of the unaffected SH: written as unaffected
         half = self.precision == "half"
         shape = (n * k, 3)
