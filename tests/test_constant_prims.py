@@ -170,3 +170,59 @@ def test_sky_a_constant_caster_hides_is_computed_once(tmp_path, monkeypatch):
     assert main([*argv, "-o", str(tmp_path / "each.usdc")]) == 0
     assert calls.count(300) == 1 + len(FRAMES)
     assert stage_differences(tmp_path / "held.usdc", tmp_path / "each.usdc", FRAMES) == []
+
+
+def _static_shot(path, animated_lamp: bool):
+    """The box alone (an object holding one pose) in the room, under a lamp that moves or not."""
+    from pxr import Gf, Usd, UsdGeom
+
+    from usd_gs.usd.gaussian_prim import save_stage_atomic
+
+    _shot(path)
+    stage = Usd.Stage.Open(str(path))
+    stage.RemovePrim("/World/Avatar")
+    stage.SetEndTimeCode(4)
+    if animated_lamp:
+        op = UsdGeom.Xformable(stage.GetPrimAtPath("/World/Lamp")).GetOrderedXformOps()[0]
+        for f in (1, 2, 3, 4):
+            op.Set(Gf.Vec3d(0.1 * f, 3, 0), Usd.TimeCode(f))
+    save_stage_atomic(stage, path)
+    return path
+
+
+@pytest.mark.parametrize("animated_lamp", [False, True])
+def test_a_shot_where_nothing_moves_is_processed_once(tmp_path, monkeypatch, animated_lamp):
+    """Nothing per-frame time-sampled and the same lights: frames 2-4 hold frame 1's results (the
+    composed output of processing every frame, but the probe textures' frame-1 file); a moving
+    lamp processes every frame."""
+    stage = _static_shot(tmp_path / "static.usda", animated_lamp)
+    frames = []
+    plain = shot.ShotProcessor._frame
+
+    def counted(self, f, *a, **k):
+        frames.append(f)
+        return plain(self, f, *a, **k)
+
+    monkeypatch.setattr(shot.ShotProcessor, "_frame", counted)
+    argv = ["process", str(stage), "--object", "/World/Box", "--lights", "stage", "--precision", "float",
+            "--aovs", "transmittance", "--json"]
+    import contextlib
+    import io
+    import json
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main([*argv, "-o", str(tmp_path / "held.usdc")]) == 0
+    held = json.loads(buf.getvalue())
+    assert frames == ([1.0, 2.0, 3.0, 4.0] if animated_lamp else [1.0])
+    assert held["affected_frames"]["/World/Box"] == 4
+    monkeypatch.setattr(shot.ShotProcessor, "_hold_frame", lambda self, f: False)
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main([*argv, "-o", str(tmp_path / "each.usdc")]) == 0
+    diffs = stage_differences(tmp_path / "held.usdc", tmp_path / "each.usdc", [1, 2, 3, 4])
+    assert [d for d in diffs if "probe:texture" not in d] == []
+    from pxr import Usd
+
+    out = Usd.Stage.Open(str(tmp_path / "held.usdc"))
+    samples = out.GetPrimAtPath("/World/Box").GetAttribute("radiance:sphericalHarmonicsCoefficients").GetTimeSamples()
+    assert samples == ([1.0, 2.0, 3.0, 4.0] if animated_lamp else [1.0])

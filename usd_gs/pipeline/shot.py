@@ -201,6 +201,23 @@ def _self_shadow_task(g, part, light, cfg: DGSMConfig, buffers=None):
     return idx, val
 
 
+def _same_value(u, v) -> bool:
+    """Equal values: arrays element for element, tuples and lists item for item, else ``==``."""
+    if isinstance(u, np.ndarray) or isinstance(v, np.ndarray):
+        return u is not None and v is not None and np.array_equal(u, v)
+    if isinstance(u, (tuple, list)) or isinstance(v, (tuple, list)):
+        return (isinstance(u, (tuple, list)) and isinstance(v, (tuple, list)) and len(u) == len(v)
+                and all(_same_value(x, y) for x, y in zip(u, v, strict=True)))
+    return bool(u == v)
+
+
+def _same_lights(a: list, b: list) -> bool:
+    """True when two frames' light lists are the same lights, field for field."""
+    return len(a) == len(b) and all(
+        x is y or all(_same_value(getattr(x, n), getattr(y, n)) for n in x.__dataclass_fields__)
+        for x, y in zip(a, b, strict=True))
+
+
 def _light_key(light) -> bytes:
     """What a light's shadows depend on (its kind, position and direction), as a dict key."""
     return light.kind.encode() + np.asarray(light.position, np.float64).tobytes() + \
@@ -261,6 +278,8 @@ class ShotProcessor:
         # their shadows under each light that does not move: (kind, prim, light key) -> (idx, T)
         self._held_shadows: dict = {}
         self._held_sky: dict = {}  # (prim, smallest hidden share kept) -> the sky it hides (_sky_task)
+        self._held_from = None  # the lights of the last processed frame (_hold_frame)
+        self._lights_at = None  # (frame, its lights) as _hold_frame found them
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
@@ -449,8 +468,10 @@ class ShotProcessor:
         dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
         sets = {**self.static, **dyn}
         self.clock.add("read", t)
-        lights = self._lights(frame)
+        at, self._lights_at = self._lights_at, None
+        lights = at[1] if at is not None and at[0] == frame else self._lights(frame)
         self.lights_used = lights
+        self._held_from = lights  # (what a later frame that holds this one's results must have)
         t = time.perf_counter()
         jobs = self._relight_jobs(dyn, sets, frame, lights)
         self.clock.add("relight", t)
@@ -464,6 +485,21 @@ class ShotProcessor:
         self.clock.add("relight", t)
         direct = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
         self._pending_write = partial(self._author_pass, frame, author, sets, shadows, relit, direct)
+
+    def _hold_frame(self, frame: float) -> bool:
+        """True when ``frame`` holds the last processed frame's results, which then stand for it (nothing
+        is computed or authored: every value holds): no prim it processes per frame has anything
+        time-sampled and its lights equal that frame's (a static insert in a static capture, e.g. under
+        a moving camera). The relit prims count as relit at it."""
+        if self._held_from is None or not self._all_constant:
+            return False
+        lights = self._lights(frame)
+        if not _same_lights(lights, self._held_from):
+            self._lights_at = (frame, lights)  # (for _frame: read or estimated once)
+            return False
+        for p in self._relit_paths:
+            self.affected[p] = self.affected.get(p, 0) + 1
+        return True
 
     def flush_writes(self) -> float:
         """Author the last processed frame's shadowed and relit SH if not done yet (:meth:`_frame`
@@ -824,6 +860,11 @@ class ShotProcessor:
         off = self.opts.self_shadow_normal * float(np.median(g.scales.max(axis=1)))
         pts = pts + off * np.repeat(np.asarray(nrm, np.float64)[idx - a], len(w), axis=0)
         return idx, pts, w
+
+    @property
+    def _all_constant(self) -> bool:
+        """True when no prim processed per frame has anything time-sampled."""
+        return all(r.path in self._constant for r in self.roles if r.per_frame)
 
     @property
     def _relit_paths(self) -> list:
@@ -1368,7 +1409,8 @@ class ShotProcessor:
                 t_frames = time.perf_counter()
                 written_lights = False
                 for f in frames:
-                    self._frame(f, author, probe_dir)
+                    if not self._hold_frame(f):
+                        self._frame(f, author, probe_dir)
                     self._save_shot_cache()
                     if not written_lights and self.lights_used and self.lights_used[0].source == "estimated":
                         self._write_lights(out.stage, [lt for lt in self.lights_used if lt.source == "estimated"],
