@@ -304,8 +304,9 @@ class ShotProcessor:
         infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime(), shared=shared) for p in prims]
         self.counts = {i.path: i.count for i in infos}
         self.degrees = {i.path: i.sh_degree for i in infos}
-        # prims with nothing time-sampled (data, transforms, skeletal animation): the same set every frame
-        self._constant = {i.path for i in infos if i.time_samples is None}
+        # prims with nothing time-sampled (data, transforms) and not skinned (a skeleton's pose may move
+        # without a time sample on the prim or its ancestors): the same set every frame
+        self._constant = {i.path for i in infos if i.time_samples is None and not i.animated}
         self.roles, warnings = resolve_roles(infos, self.opts.scene_paths, self.opts.avatar_paths,
                                              self.opts.object_paths)
         self.warnings += warnings
