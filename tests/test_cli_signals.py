@@ -65,3 +65,25 @@ def test_real_frames_of_an_import_are_recognised():
     finally:
         sys.meta_path.pop(0)
     assert seen == [True] and not cli._in_import(sys._getframe())
+
+
+def test_a_closed_output_pipe_ends_quietly(tmp_path, monkeypatch, capsys):
+    """``usdgs inspect shot.usda | head``: the reader goes away; exit 141 (as SIGPIPE would give)
+    with nothing on stderr, not an internal error."""
+    from usd_gs.synthetic import random_gaussians
+    from usd_gs.usd.gaussian_prim import new_stage, save_stage_atomic, write_gaussian_prim
+
+    stage = new_stage()
+    write_gaussian_prim(stage, "/World/G", random_gaussians(5, 0, seed=1))
+    save_stage_atomic(stage, tmp_path / "s.usdc")
+
+    class ClosedPipe:
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            pass
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert cli.main(["inspect", str(tmp_path / "s.usdc")]) == 141
+    assert capsys.readouterr().err == ""

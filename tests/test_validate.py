@@ -252,3 +252,37 @@ def test_only_gaussian_prims_checked():
     problems = validate_stage(stage)
     assert {p.prim_path for p in problems} == {"/Empty"}
     assert {p.attribute for p in problems} >= {"orientations", "scales", SH_COEFFS, SH_DEGREE, "extent"}
+
+
+def test_a_referenced_splat_typed_xform_is_named(tmp_path, capsys):
+    """``def Xform "Seal" (references = @splat@)`` types the splat prim as an Xform: validate names it
+    (exit 1), process says why there is nothing to process (exit 2) and warns when others remain."""
+    from usd_gs.cli import main
+    from usd_gs.usd.gaussian_prim import retyped_gaussian_prims, save_stage_atomic
+
+    splat = new_stage()
+    write_gaussian_prim(splat, "/World/G", random_gaussians(N, DEG, seed=5))
+    save_stage_atomic(splat, tmp_path / "splat.usdc")
+    shot = tmp_path / "shot.usda"
+    shot.write_text('#usda 1.0\n(\n    startTimeCode = 1\n    endTimeCode = 2\n)\ndef Xform "World"\n{\n'
+                    '    def Xform "Seal" (prepend references = @splat.usdc@</World/G>) {}\n'
+                    '    def "Ok" (prepend references = @splat.usdc@</World/G>) {}\n}\n')
+    stage = Usd.Stage.Open(str(shot))
+    assert retyped_gaussian_prims(stage) == [("/World/Seal", "Xform")]
+    problems = validate_stage(stage)
+    assert [(p.prim_path, p.attribute) for p in problems] == [("/World/Seal", "typeName")]
+    assert "typed Xform by a stronger opinion" in problems[0].message
+    assert main(["validate", str(shot)]) == 1
+    assert "/World/Seal.typeName: " in capsys.readouterr().out
+    assert main(["inspect", str(shot)]) == 0
+    assert "warning: /World/Seal: a ParticleField3DGaussianSplat prim typed Xform" in capsys.readouterr().out
+    assert main(["process", str(shot), "-o", str(tmp_path / "out.usdc"), "--frames", "1", "--json"]) == 0
+    import json
+
+    warnings = json.loads(capsys.readouterr().out)["warnings"]
+    assert any(w.startswith("/World/Seal: a ParticleField3DGaussianSplat prim typed Xform") for w in warnings)
+    none = tmp_path / "none.usda"  # (a new file: the first is in USD's layer registry)
+    none.write_text(shot.read_text().replace('def "Ok"', 'def Scope "Ok"'))
+    assert main(["process", str(none), "-o", str(tmp_path / "out2.usdc"), "--frames", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "no ParticleField3DGaussianSplat prims to process (/World/Ok: " in err and "1 more such prim(s)" in err

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import os
 import sys
 import traceback
 
@@ -125,6 +126,15 @@ def _main(argv: list[str], process_entry: bool = False) -> int:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
         print(f"usdgs {args.command}: {how}; no partial file was left (files finished before stay)", file=sys.stderr)
         return 143 if isinstance(exc, Terminated) else 130
+    except BrokenPipeError:
+        # the reader of the output went away (e.g. `usdgs inspect shot.usda | head`): stop quietly, as
+        # a program killed by SIGPIPE would (the exit flush must not fail again: stdout goes nowhere)
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):  # (no real file descriptor: e.g. a captured stdout)
+            pass
+        return 141
     except MemoryError as exc:
         if args.debug:
             traceback.print_exc()

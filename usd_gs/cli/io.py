@@ -442,6 +442,10 @@ def cmd_inspect(args) -> int:
     mpu = stage.GetMetadata("metersPerUnit")
     print(f"{args.stage}: upAxis {up}, metersPerUnit {mpu:g}, time codes "
           f"{stage.GetStartTimeCode():g}..{stage.GetEndTimeCode():g}, {len(rows)} Gaussian prim(s)")
+    from usd_gs.usd.gaussian_prim import retyped_gaussian_prims, retyped_message
+
+    for r in retyped_gaussian_prims(stage):
+        print(f"warning: {retyped_message(*r)}")
     if not rows:
         return 0
     cols = [("path", "prim"), ("count", "count"), ("sh_degree", "SH"), ("role", "role"),

@@ -72,7 +72,13 @@ from usd_gs.shadows.sky_occlusion import (
 )
 from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, BlockExtents, StaticSceneAtlas, StaticSceneSunAtlas
 from usd_gs.usd.frames import outside_warning, parse_frames
-from usd_gs.usd.gaussian_prim import describe_gaussian_prim, find_gaussian_prims, read_gaussian_prim
+from usd_gs.usd.gaussian_prim import (
+    describe_gaussian_prim,
+    find_gaussian_prims,
+    read_gaussian_prim,
+    retyped_gaussian_prims,
+    retyped_message,
+)
 from usd_gs.usd.lux import ShotLight, read_stage_lights
 from usd_gs.usd.output_author import OutputAuthor
 from usd_gs.usd.output_layer import OutputLayer
@@ -297,8 +303,12 @@ class ShotProcessor:
         t0 = time.perf_counter()
         self.stage = open_stage(self.input_path, allow_missing=self.opts.allow_missing or None)
         prims = find_gaussian_prims(self.stage)
+        retyped = [retyped_message(*r) for r in retyped_gaussian_prims(self.stage)]
         if not prims:
-            raise UserError(f"{self.input_path}: no ParticleField3DGaussianSplat prims to process")
+            more = f"; {len(retyped) - 1} more such prim(s)" if len(retyped) > 1 else ""
+            raise UserError(f"{self.input_path}: no ParticleField3DGaussianSplat prims to process"
+                            + (f" ({retyped[0]}{more})" if retyped else ""))
+        self.warnings += retyped
         self.prims = {str(p.GetPath()): p for p in prims}
         shared: dict = {}  # (the prims' ancestors read once)
         infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime(), shared=shared) for p in prims]

@@ -160,6 +160,28 @@ def find_gaussian_prims(stage: Usd.Stage) -> list[Usd.Prim]:
     return prims
 
 
+def retyped_gaussian_prims(stage: Usd.Stage) -> list[tuple[str, str]]:
+    """``(path, type name)`` of each prim whose composed type is not a Gaussian splat although a
+    weaker opinion on it (e.g. the prim a reference brings in) is ``ParticleField3DGaussianSplat``:
+    a stronger ``def Xform "Seal" (references = ...)`` types the referenced splat prim as an Xform,
+    which every tool then skips. Sorted by path."""
+    out = []
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+        if is_gaussian_prim(prim) or len(prim.GetPrimStack()) < 2:
+            continue
+        if any(spec.typeName == GS_TYPE for spec in prim.GetPrimStack()):
+            out.append((prim.GetPath().pathString, prim.GetTypeName() or "a typeless prim"))
+    return sorted(out)
+
+
+def retyped_message(path: str, type_name: str) -> str:
+    """One line on a :func:`retyped_gaussian_prims` prim and how to write it instead."""
+    name = path.rsplit("/", 1)[-1]
+    return (f"{path}: a ParticleField3DGaussianSplat prim typed {type_name} by a stronger opinion (e.g. "
+            f"'def {type_name} \"{name}\" (references = ...)'), so it is not read as Gaussians; write 'def "
+            f"\"{name}\" (references = ...)' (no type) or 'over'")
+
+
 def _degree(prim: Usd.Prim) -> tuple[int, bool]:
     """(SH degree, authored?) from ``radiance:sphericalHarmonicsDegree`` (fallback 3)."""
     attr = prim.GetAttribute(SH_DEGREE)

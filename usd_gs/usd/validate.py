@@ -43,6 +43,8 @@ from usd_gs.usd.gaussian_prim import (
     data_attribute,
     find_gaussian_prims,
     read_array,
+    retyped_gaussian_prims,
+    retyped_message,
     similarity_error,
 )
 
@@ -73,7 +75,10 @@ def validate_stage(stage: Usd.Stage, time=None) -> list[Problem]:
     out: list[Problem] = []
     for prim in find_gaussian_prims(stage):
         out.extend(validate_prim(prim, time))
-    return out
+    for path, type_name in retyped_gaussian_prims(stage):
+        msg = retyped_message(path, type_name).split(": ", 1)[1]
+        out.append(Problem(path, "typeName", msg))
+    return sorted(out, key=lambda p: p.prim_path)
 
 
 def _times(prim: Usd.Prim, time) -> list[Usd.TimeCode]:
