@@ -186,3 +186,38 @@ def test_console_script_debug_traceback(tmp_path):
     r = subprocess.run([*cmd, "--debug", "import", str(tmp_path / "nope.ply"), "-o", str(tmp_path / "o.usdc")],
                        capture_output=True, text=True, env=env)
     assert r.returncode == 2 and "Traceback" in r.stderr
+
+
+@pytest.mark.parametrize("up_axis, expect", [("Y", lambda p: p * [1, -1, -1]),
+                                             ("Z", lambda p: np.stack([p[:, 0], p[:, 2], -p[:, 1]], 1))])
+def test_import_y_down_turns_the_capture_up(tmp_path, up_axis, expect):
+    """``--y-down``: a transform on the prim (180 degrees about X for a Y-up stage, -90 for Z-up) puts
+    the capture's up (-Y) on the stage's up axis; the data itself and its local export stay as read,
+    for one prim, bricks and a sequence."""
+    from pxr import Usd
+
+    from usd_gs.io.formats import read_capture, write_capture
+    from usd_gs.synthetic import random_gaussians
+    from usd_gs.usd.gaussian_prim import find_gaussian_prims, read_gaussian_prim
+
+    src = tmp_path / "cap_0001.splat"
+    write_capture(src, random_gaussians(40, 0, seed=3))
+    write_capture(tmp_path / "cap_0002.splat", random_gaussians(40, 0, seed=4))
+    raw = read_capture(src)
+    for extra, name in (([], "one"), (["--brick-size", "16"], "bricks"), ([], "seq")):
+        inp = str(tmp_path / "cap_####.splat") if name == "seq" else str(src)
+        out = tmp_path / f"{name}_{up_axis}.usdc"
+        assert main(["import", inp, "-o", str(out), "--prim", "/World/Cap", "--up-axis", up_axis, "--y-down", "-q",
+                     *extra]) == 0
+        stage = Usd.Stage.Open(str(out))
+        cap = stage.GetPrimAtPath("/World/Cap")
+        assert list(cap.GetAttribute("xformOpOrder").Get()) == ["xformOp:rotateX:yDown"]
+        assert cap.GetAttribute("xformOp:rotateX:yDown").Get() == (180.0 if up_axis == "Y" else -90.0)
+        prims = find_gaussian_prims(stage)
+        t = Usd.TimeCode(1) if name == "seq" else Usd.TimeCode.EarliestTime()
+        world = np.concatenate([read_gaussian_prim(p, t).positions for p in prims]).astype(np.float64)
+        local = np.concatenate([read_gaussian_prim(p, t, world=False).positions for p in prims])
+        order = np.lexsort(local.T)  # (bricks reorder the Gaussians)
+        np.testing.assert_allclose(world[order], expect(local.astype(np.float64))[order], atol=1e-5)
+        ref = raw.positions[np.lexsort(raw.positions.T)]
+        np.testing.assert_array_equal(local[order], ref)  # the data as read

@@ -184,6 +184,8 @@ def cmd_import(args) -> int:
     extent = None if reader is None else extent.box(gaussians.count)
     if sequence:
         what = _import_sequence(args, _stage_on(layer), path)
+        if args.y_down:
+            _turn_y_down(layer, path, args.up_axis)
         save_stage_atomic(layer, args.output)
         if not args.quiet:
             print(f"wrote {args.output}: {what}")
@@ -210,6 +212,8 @@ def cmd_import(args) -> int:
 
             stage = _stage_on(layer)  # (held: a prim of a freed stage is expired)
             apply_role(stage.GetPrimAtPath(path), args.role)
+    if args.y_down:
+        _turn_y_down(layer, path, args.up_axis)
     save_stage_atomic(layer, args.output)
     if not args.quiet:
         print(f"wrote {args.output}: {path} with {gaussians.count:,} Gaussians{bricks}, SH degree "
@@ -218,6 +222,17 @@ def cmd_import(args) -> int:
 
     hold(layer, gaussians, made)  # freed by the process's end, not here (quick_exit)
     return 0
+
+
+def _turn_y_down(layer, path, up_axis: str) -> None:
+    """``--y-down``: an ``xformOp:rotateX:yDown`` on the prim at ``path`` (the bricks' parent) that
+    turns a Y-down capture up: 180 degrees for a Y-up stage (+Y down becomes +Y up), -90 for a Z-up
+    one (-Y, the capture's up, becomes +Z). The Gaussian data is not changed."""
+    from pxr import UsdGeom
+
+    stage = _stage_on(layer)
+    xf = UsdGeom.Xformable(stage.GetPrimAtPath(path))
+    xf.AddRotateXOp(opSuffix="yDown").Set(180.0 if up_axis == "Y" else -90.0)
 
 
 def _stage_on(layer):
@@ -240,7 +255,8 @@ def register_import(sub, formatter):
                                    "frame are authored once); counts may change between frames. The raw PLY "
                                    "log-scales, opacity logits and extra fields are kept as usdgs: attributes so "
                                    "'usdgs export' gives the PLY back bit for bit. The data is not rotated: "
-                                   "--up-axis only sets the stage's upAxis metadata.")
+                                   "--up-axis only sets the stage's upAxis metadata, and --y-down turns a "
+                                   "Y-down capture up with a transform on the prim.")
     p.add_argument("input", help=f"input capture ({READ_HELP}), or a frame pattern of them")
     p.add_argument("-o", "--output", required=True, help="output stage (.usd/.usdc binary, .usda text)")
     p.add_argument("--prim", help="prim path of the Gaussians (default: /<input file stem>)")
@@ -255,6 +271,10 @@ def register_import(sub, formatter):
     p.add_argument("--fps", type=float, default=24.0, help="frames per second of a sequence (timeCodesPerSecond)")
     p.add_argument("--up-axis", choices=("Y", "Z"), default="Y", help="stage upAxis metadata")
     p.add_argument("--meters-per-unit", type=float, default=1.0, help="stage metersPerUnit metadata")
+    p.add_argument("--y-down", action="store_true",
+                   help="the capture is Y-down (OpenCV/COLMAP cameras: many .splat and .ply exports show "
+                        "upside down): author xformOp:rotateX:yDown on the prim, 180 degrees for --up-axis Y, "
+                        "-90 for Z (the Gaussian data is kept as it is; 'usdgs export --local' gives it back)")
     p.add_argument("--precision", choices=("float", "half"), default="float",
                    help="author the float attributes or their half (*h) variants")
     p.add_argument("--brick-size", type=int, metavar="N",
