@@ -36,6 +36,17 @@ def _shot(path):
     return path
 
 
+def _every_frame(mp) -> None:
+    """Process as before: no prim counts as holding one pose (``mp``: a pytest MonkeyPatch)."""
+    opened = shot.ShotProcessor._open
+
+    def every_frame(self):
+        opened(self)
+        self._constant = set()
+
+    mp.setattr(shot.ShotProcessor, "_open", every_frame)
+
+
 ARGS = ["--avatar", "/World/Avatar", "--object", "/World/Box", "--precision", "float", "--sh-tolerance", "0",
         "--aovs", "transmittance", "-q"]
 
@@ -75,13 +86,7 @@ def runs(tmp_path_factory):
         counts = {"reads": list(reads), "casts": list(casts), "scene": list(scene)}
         assert main(["process", str(stage), "-o", str(tmp / "chunked.usdc"), "--chunk-size", "1", *ARGS]) == 0
         reads.clear()
-        opened = shot.ShotProcessor._open
-
-        def every_frame(self):  # as before: no prim counts as constant
-            opened(self)
-            self._constant = set()
-
-        mp.setattr(shot.ShotProcessor, "_open", every_frame)
+        _every_frame(mp)
         assert main(["process", str(stage), "-o", str(tmp / "each.usdc"), *ARGS]) == 0
         counts["reads before"] = list(reads)
     finally:
@@ -160,13 +165,7 @@ def test_sky_a_constant_caster_hides_is_computed_once(tmp_path, monkeypatch):
     assert main([*argv, "-o", str(tmp_path / "held.usdc")]) == 0
     assert calls.count(300) == 1 and calls.count(250) == len(FRAMES)  # the box once, the avatar every frame
     assert max(reached) > 100  # the box does hide sky from the room's receivers around it
-    opened = shot.ShotProcessor._open
-
-    def every_frame(self):
-        opened(self)
-        self._constant = set()
-
-    monkeypatch.setattr(shot.ShotProcessor, "_open", every_frame)
+    _every_frame(monkeypatch)
     assert main([*argv, "-o", str(tmp_path / "each.usdc")]) == 0
     assert calls.count(300) == 1 + len(FRAMES)
     assert stage_differences(tmp_path / "held.usdc", tmp_path / "each.usdc", FRAMES) == []

@@ -23,7 +23,6 @@ shot's first frame, written by the first chunk that computes it and read by the 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import hashlib
 import json
 import math
@@ -37,6 +36,7 @@ from pxr import Usd
 from usd_gs import __version__
 from usd_gs.errors import UserError
 from usd_gs.io.atomic import atomic_output
+from usd_gs.pipeline.options import canonical
 from usd_gs.usd.stage import open_stage
 
 FORMAT = "usdgs-chunk/1"
@@ -113,35 +113,16 @@ def input_hash(stage_path: str) -> str:
     return h.hexdigest()
 
 
-def _canon(value):
-    """JSON-able, exact form of options and lights (floats as hex, arrays as lists)."""
-    import numpy as np
-
-    if dataclasses.is_dataclass(value):
-        return {f.name: _canon(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, dict):
-        return {str(k): _canon(v) for k, v in sorted(value.items())}
-    if isinstance(value, (list, tuple)):
-        return [_canon(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [_canon(v) for v in value.tolist()]
-    if isinstance(value, (float, np.floating)):
-        return float(value).hex()
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
 def options_hash(options, lights, anchor: float | None = None) -> str:
     """SHA-256 of every processing option except ``frames``,
     the shot-level ``lights`` (None: per frame from the stage), the normals ``anchor`` frame
     and the package version."""
 
-    opts = _canon(options)
+    opts = canonical(options)
     opts.pop("frames", None)
     opts.pop("allow_missing", None)  # how the input is opened, not what is computed
-    text = json.dumps({"options": opts, "lights": _canon(lights), "anchor": _canon(anchor), "version": __version__},
-                      sort_keys=True)
+    text = json.dumps({"options": opts, "lights": canonical(lights), "anchor": canonical(anchor),
+                       "version": __version__}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 

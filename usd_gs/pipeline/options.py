@@ -10,7 +10,7 @@ option names with '_' (``direct_fraction``, ``atlas_size``, ...): DGSM keys are 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, is_dataclass
 
 from usd_gs.errors import UserError
 from usd_gs.relight.probe import PROBE_SUPERSAMPLE
@@ -200,3 +200,23 @@ def dgsm_config(cfg: dict) -> DGSMConfig:
 def process_kwargs(cfg: dict) -> dict:
     """The ``ProcessOptions`` keyword arguments a loaded config dict sets."""
     return {k: cfg[k] for k in PROCESS_KEYS if k in cfg}
+
+
+def canonical(value):
+    """JSON-able, exact form of options and lights (floats as hex, arrays as lists): two values with
+    the same form are the same values (the farm run's key, a frame's lights against the last one's)."""
+    import numpy as np
+
+    if is_dataclass(value):
+        return {f.name: canonical(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, dict):
+        return {str(k): canonical(v) for k, v in sorted(value.items())}
+    if isinstance(value, (list, tuple)):
+        return [canonical(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [canonical(v) for v in value.tolist()]
+    if isinstance(value, (float, np.floating)):
+        return float(value).hex()
+    if isinstance(value, np.integer):
+        return int(value)
+    return value

@@ -41,7 +41,7 @@ from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
 from usd_gs.pipeline import jit_warmup
 from usd_gs.pipeline.capture_lights import direct_fraction, estimate_for_shot, sky_occlusion_params, write_lights
-from usd_gs.pipeline.options import ProcessOptions
+from usd_gs.pipeline.options import ProcessOptions, canonical
 from usd_gs.pipeline.shot_cache import ShotCache
 from usd_gs.pipeline.summary import ProcessSummary
 from usd_gs.point_blocks import PointBlocks, within_ball
@@ -207,23 +207,6 @@ def _self_shadow_task(g, part, light, cfg: DGSMConfig, buffers=None):
     return idx, val
 
 
-def _same_value(u, v) -> bool:
-    """Equal values: arrays element for element, tuples and lists item for item, else ``==``."""
-    if isinstance(u, np.ndarray) or isinstance(v, np.ndarray):
-        return u is not None and v is not None and np.array_equal(u, v)
-    if isinstance(u, (tuple, list)) or isinstance(v, (tuple, list)):
-        return (isinstance(u, (tuple, list)) and isinstance(v, (tuple, list)) and len(u) == len(v)
-                and all(_same_value(x, y) for x, y in zip(u, v, strict=True)))
-    return bool(u == v)
-
-
-def _same_lights(a: list, b: list) -> bool:
-    """True when two frames' light lists are the same lights, field for field."""
-    return len(a) == len(b) and all(
-        x is y or all(_same_value(getattr(x, n), getattr(y, n)) for n in x.__dataclass_fields__)
-        for x, y in zip(a, b, strict=True))
-
-
 def _light_key(light) -> bytes:
     """What a light's shadows depend on (its kind, position and direction), as a dict key."""
     return light.kind.encode() + np.asarray(light.position, np.float64).tobytes() + \
@@ -285,7 +268,6 @@ class ShotProcessor:
         self._held_shadows: dict = {}
         self._held_sky: dict = {}  # (prim, smallest hidden share kept) -> the sky it hides (_sky_task)
         self._held_from = None  # the lights of the last processed frame (_hold_frame)
-        self._lights_at = None  # (frame, its lights) as _hold_frame found them
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
@@ -479,8 +461,7 @@ class ShotProcessor:
         dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
         sets = {**self.static, **dyn}
         self.clock.add("read", t)
-        at, self._lights_at = self._lights_at, None
-        lights = at[1] if at is not None and at[0] == frame else self._lights(frame)
+        lights = self._lights(frame)
         self.lights_used = lights
         self._held_from = lights  # (what a later frame that holds this one's results must have)
         t = time.perf_counter()
@@ -504,9 +485,9 @@ class ShotProcessor:
         a moving camera). The relit prims count as relit at it."""
         if self._held_from is None or not self._all_constant:
             return False
-        lights = self._lights(frame)
-        if not _same_lights(lights, self._held_from):
-            self._lights_at = (frame, lights)  # (for _frame: read or estimated once)
+        # (stage lights are read again by _frame where they moved; estimated ones are the shot's, or
+        # estimated again per frame from the same prims: the same lights, so the frame holds)
+        if canonical(self._lights(frame)) != canonical(self._held_from):
             return False
         for p in self._relit_paths:
             self.affected[p] = self.affected.get(p, 0) + 1
