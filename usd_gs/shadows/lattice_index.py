@@ -27,6 +27,12 @@ class LatticeIndex:
         self._pool = np.full((0, BLOCK, BLOCK), -1, np.int64)
         self._slots = 0
 
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(lo (2,) int64, grid (B0, B1) int32, pool (S, BLOCK, BLOCK) int64)``: the map as
+        ``numba_kernels.lattice_lookup.lattice_stencils`` reads it (block coordinates of grid cell
+        (0, 0), block -> pool slot or -1, slot -> rows or -1). Valid until the next :meth:`insert`."""
+        return self._lo, self._grid, self._pool
+
     def lookup(self, ij: np.ndarray) -> np.ndarray:
         """(M,) int64 rows of the pixels ``ij`` (M, 2) int64; -1 for pixels not inserted."""
         out = np.full(ij.shape[0], -1, np.int64)

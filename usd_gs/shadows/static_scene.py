@@ -31,9 +31,10 @@ import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
 from numba_kernels.capsule import within_capsule, within_capsule_scaled
+from numba_kernels.lattice_lookup import CORNERS, lattice_interpolate, lattice_stencils
 from usd_gs.gaussians import GaussianSet
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
-from usd_gs.shadows.lattice_index import LatticeIndex
+from usd_gs.shadows.lattice_index import BLOCK, LatticeIndex
 
 
 class _ColumnStore:
@@ -310,18 +311,6 @@ class StaticSceneSunAtlas:
     def _key(ij: np.ndarray) -> np.ndarray:
         return (ij[:, 0] + (1 << 31)) * (1 << 32) + (ij[:, 1] + (1 << 31))
 
-    def _stencils(self, pts: np.ndarray):
-        """Per point: the lattice (i0, j0) of its bilinear stencil, weights (wx, wy), bin k0, wk."""
-        from numba_kernels.dgsm_directional import dot_rows
-
-        rel = pts - self.c
-        fx = dot_rows(rel, self.basis[0]) / self.h - 0.5
-        fy = dot_rows(rel, self.basis[1]) / self.h - 0.5
-        fk = np.clip((dot_rows(rel, self.direction) - self.tb) / self.ds - 0.5, 0.0, self.K - 1.0)
-        i0, j0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
-        k0 = np.minimum(np.floor(fk).astype(np.int64), self.K - 2)
-        return i0, j0, fx - i0, fy - j0, k0, fk - k0
-
     def _near(self, ij: np.ndarray, cell: int = 32) -> np.ndarray:
         """Indices of the occluders whose culling circle can reach a lattice pixel of ``ij`` (M, 2):
         conservative, by the occupied ``cell`` x ``cell``-pixel cells (a summed-area table)."""
@@ -338,12 +327,13 @@ class StaticSceneSunAtlas:
         hits = sat[a1, b1] - sat[a0, b1] - sat[a1, b0] + sat[a0, b0]
         return np.flatnonzero(hits > 0)
 
-    def _rows(self, ij: np.ndarray) -> np.ndarray:
+    def _rows(self, ij: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """(M,) rows in the column store of the lattice pixels ``ij`` (M, 2), computing the voxel
-        columns that are not there yet (each distinct pixel once)."""
+        columns that are not there yet (each distinct pixel once). ``rows``: their rows as the map
+        already gave them (-1 where missing; filled in place), else looked up here."""
         from numba_kernels import dgsm_directional as dd
 
-        rows = self._index.lookup(ij)
+        rows = self._index.lookup(ij) if rows is None else rows
         miss = np.flatnonzero(rows < 0)
         if miss.size == 0:
             return rows
@@ -366,26 +356,17 @@ class StaticSceneSunAtlas:
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         if self.count == 0 or pts.shape[0] == 0:
             return np.ones(pts.shape[0])
-        i0, j0, wx, wy, k0, wk = self._stencils(pts)
-        corners = [(di, dj) for di in (0, 1) for dj in (0, 1)]
-        ij = np.concatenate([np.stack([i0 + di, j0 + dj], 1) for di, dj in corners])
-        rows = self._rows(ij).reshape(4, -1)
-        store = self._columns.values
-        out = np.zeros(pts.shape[0])
-        lo = np.full(pts.shape[0], np.inf)
-        hi = np.full(pts.shape[0], -np.inf)
-        for n, (di, dj) in enumerate(corners):
-            w_ij = (wx if di else 1.0 - wx) * (wy if dj else 1.0 - wy)
-            for dk in (0, 1):
-                v = store[rows[n], k0 + dk].astype(np.float64)
-                out += w_ij * (wk if dk else 1.0 - wk) * v
-                lo = np.minimum(lo, v)
-                hi = np.maximum(hi, v)
-        out = np.clip(out, 0.0, 1.0)
+        index = self._index
+        ij0, w, k0, rows = lattice_stencils(pts, self.c, self.basis, self.h, self.tb, self.ds, self.K, BLOCK,
+                                            *index.arrays())
+        if (rows < 0).any():  # columns no lookup needed before: computed now, in the corners' order
+            ij = np.concatenate([ij0 + np.array(off) for off in CORNERS])
+            rows = self._rows(ij, rows.reshape(-1)).reshape(4, -1)
+        out, spread = lattice_interpolate(rows, self._columns.values, k0, w)
         if self.cfg.refine_contrast is not None:
-            redo = np.flatnonzero(hi - lo > self.cfg.refine_contrast)
+            redo = np.flatnonzero(spread > self.cfg.refine_contrast)
             if redo.size:
-                near = self._near(np.stack([i0[redo], j0[redo]], 1) + np.array([[0, 0]]))
+                near = self._near(ij0[redo])
                 out[redo] = dd.transmittance_points(self.direction, self.occ[near], self.dir_dep, self.cov6[near],
                                                     pts[redo], self.cfg.k_sigma)[0]
         return out
