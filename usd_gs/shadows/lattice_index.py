@@ -4,9 +4,11 @@ of :class:`usd_gs.shadows.static_scene.StaticSceneSunAtlas`.
 The lattice is unbounded (a pitch of millimetres on a plane the receivers wander over), so the
 map is two-level: a dense grid of ``BLOCK`` x ``BLOCK``-pixel blocks over the range of blocks
 seen so far (grown when a pixel falls outside it), and a pool of dense ``BLOCK`` x ``BLOCK`` row
-tables, one per block that holds a pixel. A lookup is two numpy gathers, whatever the number of
-pixels stored (a sorted-key search over hundreds of thousands of lookups per frame cost tens of
-milliseconds). Memory: 4 bytes per grid block plus ``4 * BLOCK**2`` bytes per used block.
+tables, one per block that holds a pixel. A lookup is two gathers, whatever the number of pixels
+stored (a sorted-key search over hundreds of thousands of lookups per frame cost tens of
+milliseconds): :meth:`lookup` in numpy, and the sun atlas's per-frame lookups in a kernel that
+reads the same arrays (:meth:`arrays`, ``numba_kernels.lattice_lookup``). Memory: 4 bytes per grid
+block plus ``8 * BLOCK**2`` bytes per used block.
 """
 
 from __future__ import annotations
