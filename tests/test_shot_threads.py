@@ -146,3 +146,34 @@ def test_run_tasks_runs_meanwhile_on_the_calling_thread_beside_the_tasks(threads
             shot.run_tasks([lambda: 1, lambda: 2], bad)
     finally:
         numba.set_num_threads(before)
+
+
+def test_run_tasks_starts_the_longest_tasks_first():
+    """With ``costs``, the threads start on the tasks of unknown cost, then the longest; the results
+    keep the tasks' order. Two threads: the first two tasks started are the unknown and the longest."""
+    import threading
+
+    from usd_gs.pipeline import shot
+
+    before = numba.get_num_threads()
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one CPU thread here: nothing runs side by side")
+    numba.set_num_threads(2)
+    try:
+        lock, started, both = threading.Lock(), [], threading.Event()
+
+        def task(i):
+            def run():
+                with lock:
+                    started.append(i)
+                    if len(started) == 2:
+                        both.set()
+                assert both.wait(10)  # the first two run side by side before any other starts
+                return i * 10
+            return run
+
+        out = shot.run_tasks([task(i) for i in range(5)], costs=[1.0, 5.0, None, 3.0, 0.5])
+        assert out == [0, 10, 20, 30, 40]
+        assert set(started[:2]) == {1, 2} and sorted(started) == [0, 1, 2, 3, 4]
+    finally:
+        numba.set_num_threads(before)

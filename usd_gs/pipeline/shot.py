@@ -153,12 +153,15 @@ class _MovingCasters:
     receiver_spheres: dict
 
 
-def run_tasks(tasks: list, meanwhile=None) -> list:
+def run_tasks(tasks: list, meanwhile=None, costs=None) -> list:
     """The results of ``tasks`` (callables without arguments), in their order: in up to
     ``thread_count()`` threads (the kernels they call run their own chunks in the shared kernel
     pool, numpy releases the GIL), or one after the other with one thread. ``meanwhile`` (a callable
     without arguments, or None) runs on the calling thread while the tasks run (with one thread:
-    before them; also when there are no tasks); it must not share state with them."""
+    before them; also when there are no tasks); it must not share state with them. ``costs``
+    (None, or one expected duration per task, None where unknown) starts the threads on the
+    longest tasks first (unknown ones before all: the pass ends with short tasks, not with one
+    long task on one core); the results do not depend on it."""
     workers = min(len(tasks), thread_count())
     if workers <= 1:
         if meanwhile is not None:
@@ -166,11 +169,28 @@ def run_tasks(tasks: list, meanwhile=None) -> list:
         return [task() for task in tasks]
     from concurrent.futures import ThreadPoolExecutor
 
+    order = range(len(tasks))
+    if costs is not None:
+        order = sorted(order, key=lambda i: -np.inf if costs[i] is None else -costs[i])
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="usdgs-task") as pool:
-        futures = [pool.submit(task) for task in tasks]
+        futures = {i: pool.submit(tasks[i]) for i in order}
         if meanwhile is not None:
             meanwhile()
-        return [f.result() for f in futures]
+        return [futures[i].result() for i in range(len(tasks))]
+
+
+def _timed(task, key, seconds: dict):
+    """``task`` that records its wall seconds in ``seconds[key]`` (a key per task: no two threads
+    write the same entry)."""
+
+    def run():
+        t = time.perf_counter()
+        try:
+            return task()
+        finally:
+            seconds[key] = time.perf_counter() - t
+
+    return run
 
 
 def _spread_samples(res, prims: list, maps: dict, drecv: Receivers):
@@ -260,6 +280,7 @@ class ShotProcessor:
         self._probe_blends: dict = {}
         self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
+        self._task_seconds: dict = {}  # the last shadow pass's seconds per task key (its task order)
         self._local_sh_cache: dict = {}
         self._constant: set[str] = set()  # prims with nothing time-sampled (_open)
         self._held_reads: dict = {}  # their sets, read once (_read)
@@ -471,7 +492,7 @@ class ShotProcessor:
         # the previous frame's authoring runs on this thread while this frame's shadow tasks run
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
                                                [partial(probe_transfer, **job) for _, job in jobs],
-                                               meanwhile=self.flush_writes)
+                                               meanwhile=self.flush_writes, extra_keys=[p for p, _ in jobs])
         t = time.perf_counter()
         relit = self._relight_pass(jobs, transfers, frame, author, probe_dir, lights, shadows)
         self.clock.add("relight", t)
@@ -504,12 +525,15 @@ class ShotProcessor:
         write()
         return self.clock.add("write", t) - t
 
-    def _shadow_pass(self, sets: dict, lights: list[ShotLight], extra=(), meanwhile=None) -> tuple[FrameShadows, list]:
+    def _shadow_pass(self, sets: dict, lights: list[ShotLight], extra=(), meanwhile=None,
+                     extra_keys=None) -> tuple[FrameShadows, list]:
         """Every light's transmittance on every receiver, combined by the lights' shares; ``extra``
         tasks (callables without arguments, e.g. the probe renders) run in the same threads as the
         shadow tasks, ``meanwhile`` (returning its seconds, not counted as the pass's) on this
-        thread while they run (``run_tasks`` calls it even without tasks). Returns ``(shadows, the
-        extra tasks' results)``."""
+        thread while they run (``run_tasks`` calls it even without tasks); ``extra_keys``: a name per
+        extra task that stays the same from frame to frame (default: its position), under which its
+        time is kept for the next frame's order. The threads start on the tasks that took longest at
+        the last frame. Returns ``(shadows, the extra tasks' results)``."""
         clk = self.clock
         t = time.perf_counter()
         srecv = self._static_recv
@@ -535,12 +559,19 @@ class ShotProcessor:
         extra = list(extra)
         sky = self._sky_task(sets)
         aside = []
-        results = run_tasks(extra + [sky or (lambda: None)] + [task for tasks, _ in work for task in tasks],
-                            (lambda: aside.append(meanwhile())) if meanwhile is not None else None)
+        # longest first, by what each task took at the last frame (keyed by kind, prim and light)
+        keys = ([("extra", k) for k in (range(len(extra)) if extra_keys is None else extra_keys)] + [("sky",)]
+                + [(*step, _light_key(light)) for light, (_, _, steps) in zip(lights, work, strict=True)
+                   for step in steps])
+        last, self._task_seconds = self._task_seconds, {}
+        tasks = extra + [sky or (lambda: None)] + [task for tasks, _, _ in work for task in tasks]
+        results = run_tasks([_timed(t, k, self._task_seconds) for t, k in zip(tasks, keys, strict=True)],
+                            (lambda: aside.append(meanwhile())) if meanwhile is not None else None,
+                            costs=[last.get(k) for k in keys])
         t += sum(aside)  # (the shadow pass's clock leaves out what ran beside it)
         extra, shares, results = results[:len(extra)], results[len(extra)], results[len(extra) + 1:]
         start = 0
-        for tasks, apply in work:
+        for tasks, apply, _ in work:
             ts, td, hits = apply(results[start:start + len(tasks)])
             start += len(tasks)
             s_light.append(ts)
@@ -617,10 +648,11 @@ class ShotProcessor:
         (:meth:`_caster_task`), each relit caster's self-shadow, and the static
         scene's shadow on the moving receivers from its shot-long atlas (built once per shot and
         light, voxel columns on demand: ``StaticSceneAtlas`` for a point light,
-        ``StaticSceneSunAtlas`` for a directional one). Returns ``(tasks, apply)``: ``apply(results)``
+        ``StaticSceneSunAtlas`` for a directional one). Returns ``(tasks, apply, steps)``: ``apply(results)``
         combines the tasks' results in a fixed order into ``(static transmittance, moving
         transmittance, the static receivers some caster shadows)``, the same values whether the
-        tasks ran one after the other or side by side."""
+        tasks ran one after the other or side by side, in any order; ``steps`` names each task
+        (its kind and prim)."""
         srecv = self._static_recv
         tasks, steps = [], []
         for q in self._casters_dyn:
@@ -667,7 +699,7 @@ class ShotProcessor:
                     td[res[0]] *= res[1]
             return ts, td, hits
 
-        return tasks, apply
+        return tasks, apply, steps
 
     def _pack_buffers(self, q: str, use, n: int):
         """``(occ (n, 16), cov6 (n, 6))`` float64 buffers that moving caster ``q``'s packed occluders
