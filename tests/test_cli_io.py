@@ -88,6 +88,50 @@ def test_inspect_table_lists_prim(tmp_path, capsys):
     assert "upAxis Z" in out and "/small" in out and " 30 " in out
 
 
+def test_inspect_warns_of_units_and_up_axis_left_to_a_sublayer(tmp_path, capsys):
+    """USD reads metersPerUnit and upAxis from the root layer only: a shot layer over an imported
+    capture (Z-up, metres) that does not author them is read in centimetres, Y-up; inspect names
+    both, with the sublayer's values; a root that authors them (or whose sublayer agrees with USD's
+    defaults) gets no warning."""
+    from pxr import Sdf, Usd
+
+    from usd_gs.usd.stage import root_metadata_warnings
+
+    ply = tmp_path / "small.ply"
+    write_raw_ply(ply, n=30, degree=0)
+    assert run_cli(capsys, "import", ply, "-o", tmp_path / "small.usda", "--up-axis", "Z")[0] == 0
+    shot = Sdf.Layer.CreateNew(str(tmp_path / "shot.usda"))
+    shot.subLayerPaths.append("small.usda")
+    shot.Save()
+    code, out, _ = run_cli(capsys, "inspect", tmp_path / "shot.usda")
+    assert code == 0 and "upAxis Y, metersPerUnit 0.01" in out
+    lines = [ln for ln in out.splitlines() if ln.startswith("warning: ")]
+    assert len(lines) == 2, out
+    assert "metersPerUnit is not authored on the root layer" in lines[0] and "0.01 (centimetres)" in lines[0]
+    assert "small.usda says 1: author metersPerUnit = 1" in lines[0]
+    assert "upAxis is not authored" in lines[1] and "default Y" in lines[1] and "says Z" in lines[1]
+    # usdgs process warns the same (its summary's warnings)
+    from usd_gs.pipeline.options import ProcessOptions
+    from usd_gs.pipeline.shot import ShotProcessor
+
+    proc = ShotProcessor(str(tmp_path / "shot.usda"), str(tmp_path / "o.usdc"), ProcessOptions())
+    proc._open()
+    assert [w for w in proc.warnings if "not authored on the root layer" in w] == [ln[9:] for ln in lines]
+    # the root authors them: read as authored, nothing to say
+    shot.pseudoRoot.SetInfo("metersPerUnit", 1.0)
+    shot.pseudoRoot.SetInfo("upAxis", "Z")
+    shot.Save()
+    assert root_metadata_warnings(Usd.Stage.Open(str(tmp_path / "shot.usda"))) == []
+    # a sublayer that says what USD falls back to: nothing lost
+    flat = Sdf.Layer.CreateNew(str(tmp_path / "cm.usda"))
+    flat.pseudoRoot.SetInfo("metersPerUnit", 0.01)
+    flat.Save()
+    over = Sdf.Layer.CreateNew(str(tmp_path / "over.usda"))
+    over.subLayerPaths.append("cm.usda")
+    over.Save()
+    assert root_metadata_warnings(Usd.Stage.Open(str(tmp_path / "over.usda"))) == []
+
+
 @pytest.mark.parametrize(
     "case, expect",
     [

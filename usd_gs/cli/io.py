@@ -463,9 +463,10 @@ def cmd_inspect(args) -> int:
     print(f"{args.stage}: upAxis {up}, metersPerUnit {mpu:g}, time codes "
           f"{stage.GetStartTimeCode():g}..{stage.GetEndTimeCode():g}, {len(rows)} Gaussian prim(s)")
     from usd_gs.usd.gaussian_prim import retyped_gaussian_prims, retyped_message
+    from usd_gs.usd.stage import root_metadata_warnings
 
-    for r in retyped_gaussian_prims(stage):
-        print(f"warning: {retyped_message(*r)}")
+    for w in [retyped_message(*r) for r in retyped_gaussian_prims(stage)] + root_metadata_warnings(stage, args.stage):
+        print(f"warning: {w}")
     if not rows:
         return 0
     cols = [("path", "prim"), ("count", "count"), ("sh_degree", "SH"), ("role", "role"),

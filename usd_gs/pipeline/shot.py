@@ -85,7 +85,7 @@ from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.skel import has_skel_binding
 from usd_gs.usd.skel_bake import bake_skinning
-from usd_gs.usd.stage import open_stage
+from usd_gs.usd.stage import open_stage, root_metadata_warnings
 
 __all__ = ["ProcessOptions", "ProcessSummary", "ShotProcessor", "default_output_path"]
 
@@ -311,7 +311,7 @@ class ShotProcessor:
             more = f"; {len(retyped) - 1} more such prim(s)" if len(retyped) > 1 else ""
             raise UserError(f"{self.input_path}: no ParticleField3DGaussianSplat prims to process"
                             + (f" ({retyped[0]}{more})" if retyped else ""))
-        self.warnings += retyped
+        self.warnings += retyped + root_metadata_warnings(self.stage, self.input_path)
         self.prims = {str(p.GetPath()): p for p in prims}
         shared: dict = {}  # (the prims' ancestors read once)
         infos = [describe_gaussian_prim(p, Usd.TimeCode.EarliestTime(), shared=shared) for p in prims]

@@ -128,3 +128,39 @@ def time_code(text: str | None):
     if value != value or value in (float("inf"), float("-inf")):
         raise UserError(f"--time '{text}' must be finite")
     return Usd.TimeCode(value)
+
+
+#: stage metadata that USD reads from the root layer only, with its fallback's meaning
+_ROOT_ONLY = {"metersPerUnit": "centimetres", "upAxis": None}
+
+
+def root_metadata_warnings(stage, name: str | None = None) -> list[str]:
+    """One line per stage metadatum (``metersPerUnit``, ``upAxis``) that the root layer of ``stage``
+    does not author while a layer it uses (a sublayer, a reference) authors another value than the
+    one the stage resolves to: USD reads these from the root layer only, so the stage falls back
+    to USD's default (metersPerUnit 0.01: centimetres) and every distance the tool derives (shadow
+    reach, probe radii, light estimation) is off by that factor. ``name``: how to call the stage
+    (default: its root layer's path)."""
+    root = stage.GetRootLayer()
+    name = name or root.identifier
+    out = []
+    for key, meaning in _ROOT_ONLY.items():
+        if root.pseudoRoot.HasInfo(key):
+            continue
+        value = stage.GetMetadata(key)
+        # its own sublayers first (in strength order), then the layers it references
+        layers = list(stage.GetLayerStack(includeSessionLayers=False))
+        layers += [lay for lay in stage.GetUsedLayers() if lay not in layers]
+        for layer in layers:
+            if layer == root or layer.anonymous or not layer.pseudoRoot.HasInfo(key):
+                continue
+            other = layer.pseudoRoot.GetInfo(key)
+            if other != value:
+                fallback = f"{value:g}" if isinstance(value, float) else str(value)
+                said = f"{other:g}" if isinstance(other, float) else str(other)
+                out.append(f"{name}: {key} is not authored on the root layer, so the stage is read with USD's "
+                           f"default {fallback}{f' ({meaning})' if meaning else ''}, but {layer.identifier} says "
+                           f"{said}: author {key} = {said} in the root layer's header (USD reads it from the root "
+                           f"layer only)")
+                break
+    return out
