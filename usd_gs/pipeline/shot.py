@@ -180,8 +180,8 @@ def run_tasks(tasks: list, meanwhile=None, costs=None) -> list:
 
 
 def _timed(task, key, seconds: dict):
-    """``task`` that records its wall seconds in ``seconds[key]`` (a key per task: no two threads
-    write the same entry)."""
+    """``task`` that records its wall seconds in ``seconds[key]`` (one key per task; two tasks under
+    one key, e.g. two lights at one place, leave the later one's time: a hint for the order only)."""
 
     def run():
         t = time.perf_counter()
@@ -564,10 +564,10 @@ class ShotProcessor:
                 + [(*step, _light_key(light)) for light, (_, _, steps) in zip(lights, work, strict=True)
                    for step in steps])
         last, self._task_seconds = self._task_seconds, {}
-        tasks = extra + [sky or (lambda: None)] + [task for tasks, _, _ in work for task in tasks]
-        results = run_tasks([_timed(t, k, self._task_seconds) for t, k in zip(tasks, keys, strict=True)],
+        every = extra + [sky or (lambda: None)] + [task for light_tasks, _, _ in work for task in light_tasks]
+        results = run_tasks([_timed(task, key, self._task_seconds) for task, key in zip(every, keys, strict=True)],
                             (lambda: aside.append(meanwhile())) if meanwhile is not None else None,
-                            costs=[last.get(k) for k in keys])
+                            costs=[last.get(key) for key in keys])
         t += sum(aside)  # (the shadow pass's clock leaves out what ran beside it)
         extra, shares, results = results[:len(extra)], results[len(extra)], results[len(extra) + 1:]
         start = 0
