@@ -110,6 +110,9 @@ def test_inspect_warns_of_units_and_up_axis_left_to_a_sublayer(tmp_path, capsys)
     assert "metersPerUnit is not authored on the root layer" in lines[0] and "0.01 (centimetres)" in lines[0]
     assert "small.usda says 1: author metersPerUnit = 1" in lines[0]
     assert "upAxis is not authored" in lines[1] and "default Y" in lines[1] and "says Z" in lines[1]
+    # usdgs validate says it too, without failing (the stage is valid USD)
+    code, out, _ = run_cli(capsys, "validate", tmp_path / "shot.usda")
+    assert code == 0 and [ln for ln in out.splitlines() if ln.startswith("warning: ")] == lines
     # usdgs process warns the same (its summary's warnings)
     from usd_gs.pipeline.options import ProcessOptions
     from usd_gs.pipeline.shot import ShotProcessor

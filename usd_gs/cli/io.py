@@ -495,7 +495,7 @@ def register_inspect(sub, formatter):
 
 # ----------------------------------------------------------------------------- validate
 def cmd_validate(args) -> int:
-    from usd_gs.usd.stage import open_stage
+    from usd_gs.usd.stage import open_stage, root_metadata_warnings
     from usd_gs.usd.validate import validate_stage
 
     stage = open_stage(args.stage)
@@ -503,6 +503,9 @@ def cmd_validate(args) -> int:
     for p in problems:
         elem = "" if p.element is None else f"[{p.element}]"
         print(f"{p.prim_path}.{p.attribute}{elem}: {p.message}")
+    if not args.quiet:  # (valid USD either way: said, not counted as a problem)
+        for w in root_metadata_warnings(stage, args.stage):
+            print(f"warning: {w}")
     if problems:
         print(f"{args.stage}: {len(problems)} problem(s)", file=sys.stderr)
         return 1
@@ -517,7 +520,9 @@ def register_validate(sub, formatter):
                                    "rules (values present, lengths, opacity range, positive scales, unit "
                                    "quaternions, SH degree, interpolation and elementSize) plus NaN/Inf and "
                                    "transform checks, at every time sample. Exit code 1 when any fails; each "
-                                   "problem is listed as prim.attribute[first bad element]: message.")
+                                   "problem is listed as prim.attribute[first bad element]: message. Also warns "
+                                   "(without failing) where the root layer leaves metersPerUnit or upAxis to a "
+                                   "sublayer or reference that says otherwise.")
     p.add_argument("stage", help="USD stage")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing when the stage is valid")
     p.set_defaults(handler=cmd_validate)
