@@ -487,8 +487,7 @@ def transmittance_points(direction, occ, dir_dep: int, cov6, points, k_sigma: fl
     occ = np.ascontiguousarray(occ, dtype=np.float64)
     starts = support_starts(dot_rows(occ[:, :3] - c, B[2]), occ, k_sigma, _sigma_along(cv, B[2]))
     # each tile list in support-start order, the occluders left where they are: copying a large
-    # caster into that order cost more than the sums' scattered reads save (on the seal shot's
-    # casters 10-20 % of the call); the same values either way
+    # caster into that order cost more than the sums' scattered reads save; the same values either way
     start, items, circ = _bin(np.ascontiguousarray(occ[:, :3]), cv, c, B, width, S, h, float(k_sigma), active,
                               np.argsort(starts, kind="stable"))
     gs, rows, gt = _groups(flat, width, True)

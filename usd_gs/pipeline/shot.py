@@ -338,11 +338,17 @@ class ShotProcessor:
         """A prim's Gaussians at ``frame``. A prim with nothing time-sampled (e.g. an inserted object
         or character that holds one pose, processed every frame since what lights it moves) is read
         once and its set reused at every frame: the same values (sets are never written in place)."""
-        if path not in self._constant:
-            return self._read_usd(path, frame)
-        got = self._held_reads.get(path)
+        return self._once(self._held_reads, path, path, partial(self._read_usd, path, frame))
+
+    def _once(self, store: dict, key, prim: str, compute):
+        """``compute()``; for ``prim`` with nothing time-sampled, computed once and kept in
+        ``store[key]`` (the held reads, packs and sky parts: values that do not change while the
+        prim holds its pose)."""
+        if prim not in self._constant:
+            return compute()
+        got = store.get(key)
         if got is None:
-            got = self._held_reads[path] = self._read_usd(path, frame)
+            got = store[key] = compute()
         return got
 
     def _read_usd(self, path: str, frame: float):
@@ -543,8 +549,8 @@ class ShotProcessor:
         cfg = self.dgsm
         packed = {q: self._packed_caster(q, sets[q]) for q in self._casters_dyn} if lights else {}
         # what casters with nothing time-sampled gave under lights that are no longer used
-        keys = {_light_key(lt) for lt in lights}
-        self._held_shadows = {k: v for k, v in self._held_shadows.items() if k[2] in keys}
+        used = {_light_key(lt) for lt in lights}
+        self._held_shadows = {k: v for k, v in self._held_shadows.items() if k[2] in used}
         # bounding spheres of the moving prims (one threaded pass over the receivers; the same
         # values as occluder_sphere), for prim-level culling against each caster's beam, as for the bricks
         rspheres = prim_spheres(drecv, cfg.k_sigma) if packed else {}
@@ -615,12 +621,8 @@ class ShotProcessor:
         def task():
             parts = []
             for q in self._casters_dyn:
-                got = self._held_sky.get((q, h_min)) if q in self._constant else None
-                if got is None:
-                    got = caster_hidden_parts(sets[q], srecv, spheres, up, h_min, normals)
-                    if q in self._constant:
-                        self._held_sky[(q, h_min)] = got
-                parts.extend(got)
+                parts.extend(self._once(self._held_sky, (q, h_min), q,
+                                        partial(caster_hidden_parts, sets[q], srecv, spheres, up, h_min, normals)))
             return combine_hidden_parts(parts, h_min)
 
         return task
@@ -778,12 +780,8 @@ class ShotProcessor:
     def _packed_caster(self, q: str, g):
         """Moving caster ``q``'s packed occluders for this frame (``prepare_occluders``), written into
         its shot-long buffers; once per shot for a prim with nothing time-sampled."""
-        if q in self._constant and q in self._held_packs:
-            return self._held_packs[q]
-        got = prepare_occluders(g, self.dgsm, self._pack_buffers(q, "cast", g.count))
-        if q in self._constant:
-            self._held_packs[q] = got
-        return got
+        return self._once(self._held_packs, q, q,
+                          lambda: prepare_occluders(g, self.dgsm, self._pack_buffers(q, "cast", g.count)))
 
     def _self_task(self, q: str, g, drecv: Receivers, light):
         """The task giving ``(idx, T)`` of relit prim ``q``'s self-shadow samples through its own DGSM

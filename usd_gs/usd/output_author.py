@@ -57,6 +57,11 @@ def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.einsum("nkc,k->nc", d, ymax), initial=0.0))
 
 
+#: elements compared at a time by :func:`same_values` and :func:`sh_display_within` (a change is
+#: usually found in the first block)
+_SAME_BLOCK = 1 << 18
+
+
 def sh_display_within(a: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
     """``sh_display_change(a, b) < tolerance``, block by block of rows: SH that changed (the usual
     case for a moving or relit prim) are told apart in their first block that moved."""
@@ -79,10 +84,6 @@ def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.
     if full.any():
         out[full] = np.maximum.reduceat(rows, offsets[:-1][full])
     return out
-
-
-#: elements compared at a time by :func:`same_values` (a change is usually found in the first block)
-_SAME_BLOCK = 1 << 18
 
 
 def same_values(a: np.ndarray, b: np.ndarray) -> bool:
