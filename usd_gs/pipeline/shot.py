@@ -190,6 +190,7 @@ def _timed(task, key, seconds: dict):
         finally:
             seconds[key] = time.perf_counter() - t
 
+    run.__wrapped__ = task  # (what it runs, for tools that name tasks)
     return run
 
 
