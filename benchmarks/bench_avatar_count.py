@@ -106,7 +106,7 @@ def run_tasks_serial(stage: Path, out: Path, frames: str) -> dict:
     seconds: dict = {}
     frame_no = [0]
 
-    def serial(tasks, meanwhile=None, costs=None):  # (in the given order: the costs only reorder)
+    def serial(tasks, meanwhile=None, costs=None, sizes=None):  # (in the given order: costs, sizes only reorder)
         if meanwhile is not None:
             meanwhile()
         out = []

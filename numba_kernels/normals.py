@@ -273,7 +273,7 @@ def _find_root(parent, par, i):
     return i, p
 
 
-@njit(cache=True, fastmath=False)  # serial: union-find is sequential (see jit_options.SERIAL_NOTE)
+@njit(cache=True, fastmath=False, nogil=True)  # serial: union-find is sequential (jit_options.SERIAL_NOTE)
 def _orient_kernel(pos, axis, nbr, count, radius, passes, tangential, vote, weight, agree, root, parity):
     """Signed union-find over the kept neighbour pairs (module docstring, step 3): pass k joins
     i and j when |<a_i, a_j>| >= passes[k, 0], |p_j - p_i| <= passes[k, 1] * radius and j lies

@@ -177,3 +177,39 @@ def test_run_tasks_starts_the_longest_tasks_first():
         assert set(started[:2]) == {1, 2} and sorted(started) == [0, 1, 2, 3, 4]
     finally:
         numba.set_num_threads(before)
+
+
+def test_tasks_without_a_cost_start_first_and_largest_first():
+    """``run_tasks``' start order: the tasks that have not run yet (no cost: a shot's first frame)
+    before the others, by their size proxy, largest first (ties as given); then by cost."""
+    from usd_gs.pipeline import shot
+
+    costs = [0.2, None, 0.9, None, None, 0.5]
+    assert shot._start_order(6, costs, sizes=[0, 10, 0, 30, 10, 0]) == [3, 1, 4, 2, 5, 0]
+    assert shot._start_order(6, costs) == [1, 3, 4, 2, 5, 0]
+    assert shot._start_order(3, None, sizes=[1, 3, 2]) == [1, 2, 0]
+    assert shot._start_order(3) == [0, 1, 2]
+
+
+def test_normals_estimated_ahead_side_by_side_give_the_same_output(tmp_path, monkeypatch):
+    """The relit prims' normals due at the first frame are estimated side by side before the
+    frame's relighting inputs (``ShotProcessor._estimate_normals_ahead``): the two avatars' both,
+    once; the output is that of estimating them one after the other where they are needed."""
+    from usd_gs.pipeline import shot as shot_mod
+
+    shot = _shot(tmp_path / "shot.usda")
+    argv = ["process", str(shot), "--avatar", "/World/Avatar", "--avatar", "/World/Second", "--lights", "stage",
+            "--precision", "float", "--sh-tolerance", "0", "-q"]
+    plain = shot_mod.ShotProcessor._estimate_normals_ahead
+    ahead = []
+
+    def spy(self, prims, frame):
+        plain(self, prims, frame)
+        ahead.append(sorted(self._normals_ahead))
+
+    monkeypatch.setattr(shot_mod.ShotProcessor, "_estimate_normals_ahead", spy)
+    assert main([*argv, "-o", str(tmp_path / "ahead.usdc")]) == 0
+    assert ahead == [["/World/Avatar", "/World/Second"], [], []]
+    monkeypatch.setattr(shot_mod.ShotProcessor, "_estimate_normals_ahead", lambda self, prims, frame: None)
+    assert main([*argv, "-o", str(tmp_path / "inline.usdc")]) == 0
+    assert stage_differences(tmp_path / "ahead.usdc", tmp_path / "inline.usdc", [1, 2, 3]) == []

@@ -153,7 +153,7 @@ class _MovingCasters:
     receiver_spheres: dict
 
 
-def run_tasks(tasks: list, meanwhile=None, costs=None) -> list:
+def run_tasks(tasks: list, meanwhile=None, costs=None, sizes=None) -> list:
     """The results of ``tasks`` (callables without arguments), in their order: in up to
     ``thread_count()`` threads (the kernels they call run their own chunks in the shared kernel
     pool, numpy releases the GIL), or one after the other with one thread. ``meanwhile`` (a callable
@@ -161,7 +161,9 @@ def run_tasks(tasks: list, meanwhile=None, costs=None) -> list:
     before them; also when there are no tasks); it must not share state with them. ``costs``
     (None, or one expected duration per task, None where unknown) starts the threads on the
     longest tasks first (unknown ones before all: the pass ends with short tasks, not with one
-    long task on one core); the results do not depend on it."""
+    long task on one core); ``sizes`` (None, or one number per task: a proxy of its work, e.g. the
+    Gaussians it draws) orders the tasks without a cost among themselves, largest first. The
+    results depend on neither."""
     workers = min(len(tasks), thread_count())
     if workers <= 1:
         if meanwhile is not None:
@@ -169,14 +171,27 @@ def run_tasks(tasks: list, meanwhile=None, costs=None) -> list:
         return [task() for task in tasks]
     from concurrent.futures import ThreadPoolExecutor
 
-    order = range(len(tasks))
-    if costs is not None:
-        order = sorted(order, key=lambda i: -np.inf if costs[i] is None else -costs[i])
+    order = _start_order(len(tasks), costs, sizes)
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="usdgs-task") as pool:
         futures = {i: pool.submit(tasks[i]) for i in order}
         if meanwhile is not None:
             meanwhile()
         return [futures[i].result() for i in range(len(tasks))]
+
+
+def _local_normals_of(g) -> np.ndarray:
+    """(N, 3) float32 normals of set ``g`` (``gaussian_normals``) in each Gaussian's own frame."""
+    return normals_to_local(g.orientations, gaussian_normals(g.positions, g.orientations, g.scales, g.opacities))
+
+
+def _start_order(n: int, costs=None, sizes=None) -> list[int]:
+    """The order :func:`run_tasks` submits ``n`` tasks in: those without a cost first, by ``sizes``
+    (largest first; ties and no sizes: as given), then the others by cost, longest first."""
+    unknown = [i for i in range(n) if costs is None or costs[i] is None]
+    if sizes is not None:
+        unknown.sort(key=lambda i: -sizes[i])
+    known = sorted((i for i in range(n) if costs is not None and costs[i] is not None), key=lambda i: -costs[i])
+    return unknown + known
 
 
 def _timed(task, key, seconds: dict):
@@ -278,6 +293,7 @@ class ShotProcessor:
         self._buffer = None  # the probe renders' concatenated shot (_shot_buffer)
         self._static_shared = None  # (static rows, whole set) the static receivers and the buffer share
         self._local_normals: dict = {}
+        self._normals_ahead: dict = {}  # path -> (the set, its local normals): _estimate_normals_ahead
         self._probe_blends: dict = {}
         self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
@@ -574,7 +590,7 @@ class ShotProcessor:
         every = extra + [sky or (lambda: None)] + [task for light_tasks, _, _ in work for task in light_tasks]
         results = run_tasks([_timed(task, key, self._task_seconds) for task, key in zip(every, keys, strict=True)],
                             (lambda: aside.append(meanwhile())) if meanwhile is not None else None,
-                            costs=[last.get(key) for key in keys])
+                            costs=[last.get(key) for key in keys], sizes=self._task_sizes(keys, sets))
         t += sum(aside)  # (the shadow pass's clock leaves out what ran beside it)
         extra, shares, results = results[:len(extra)], results[len(extra)], results[len(extra) + 1:]
         start = 0
@@ -600,6 +616,16 @@ class ShotProcessor:
         u, t_static_u, sky_u = self._sky_hidden(shares, u, t_static_u)
         clk.add("shadows", t)
         return FrameShadows(drecv, u, t_static_u, t_dyn, d_light, sky_u), extra
+
+    def _task_sizes(self, keys: list, sets: dict) -> list[int]:
+        """A proxy of each shadow-pass task's work, for the order of tasks that have not run yet (a
+        shot's first frame, a new light): the Gaussians it draws or packs. A probe render (``extra``)
+        draws the whole frame, the static scene's task builds its shot-long atlas over the static
+        casters, a caster's and a self-shadow's DGSM packs the prim, the sky task is small."""
+        total = sum(g.count for g in sets.values())
+        scene = self._scene_block.count if self._scene_block is not None else 0
+        sizes = {"extra": total, "sky": 0, "scene": scene}
+        return [sizes[key[0]] if key[0] in sizes else sets[key[1]].count for key in keys]
 
     def _sky_task(self, sets: dict):
         """The frame's ``hidden_sky_shares`` as a task (``usd_gs.shadows.sky_occlusion``: the sky the
@@ -901,9 +927,34 @@ class ShotProcessor:
         relit = self._relit_paths
         if relit:
             everything, spans = self._shot_buffer(dyn)
+            self._estimate_normals_ahead({p: sets[p] for p in relit}, frame)
         for path in relit:
             jobs.append((path, self._relight_inputs(path, sets[path], everything, spans[path], frame, lights, spans)))
+        self._normals_ahead = {}
         return jobs
+
+    def _estimate_normals_ahead(self, prims: dict, frame: float) -> None:
+        """The relit prims' normals that :meth:`_prim_local_normals` is about to estimate from this
+        frame's Gaussians (``prims``: path -> set), estimated side by side in threads (the estimate
+        has serial parts: one prim at a time leaves a core idle), kept for it in ``_normals_ahead``.
+        Only where it would estimate them from these sets: not for a prim that has normals, a
+        chunk's prim whose normals come from the anchor frame, or one the shot cache holds."""
+        cache, due = self.shot_cache, {}
+        for path, g in prims.items():
+            local = self._local_normals.get(path)
+            if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
+                continue  # read at the anchor frame
+            if local is not None and local.shape[0] == g.count:
+                continue
+            if local is None and cache is not None and frame == self._first_frame():
+                got = cache.peek("normals", path)
+                if got is not None and got[-1].shape[0] == g.count:
+                    continue  # (_from_anchor's rule)
+            due[path] = g
+        if len(due) > 1:
+            jit_warmup.wait_for("relight")  # (a cold cache: the warm-up process compiles the normals' kernels)
+            done = run_tasks([partial(_local_normals_of, g) for g in due.values()])
+            self._normals_ahead = {p: (g, n) for (p, g), n in zip(due.items(), done, strict=True)}
 
     def _relight_pass(self, jobs: list, transfers: list, frame: float, author, probe_dir: Path, lights=(),
                       shadows: FrameShadows | None = None) -> dict:
@@ -1240,8 +1291,8 @@ class ShotProcessor:
         first = None
 
         def estimate(h):
-            return (normals_to_local(h.orientations, gaussian_normals(h.positions, h.orientations, h.scales,
-                                                                      h.opacities)),)
+            ahead = self._normals_ahead.pop(path, None)  # (:meth:`_estimate_normals_ahead`)
+            return (ahead[1] if ahead is not None and ahead[0] is h else _local_normals_of(h),)
 
         if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
             def at_anchor():  # a chunk: normals and clusters from the shot's first frame

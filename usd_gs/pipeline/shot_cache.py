@@ -78,6 +78,11 @@ class ShotCache:
                 self.loaded += 1
         return got
 
+    def peek(self, *key) -> tuple[np.ndarray, ...] | None:
+        """:meth:`get` without counting a load (to decide whether something must be computed)."""
+        with self._lock:
+            return self._entries.get(_entry_name(key))
+
     def put(self, key: tuple, arrays) -> None:
         """Store ``arrays`` (a sequence of arrays) under ``key``; the first value stored stays."""
         name = _entry_name(key)
