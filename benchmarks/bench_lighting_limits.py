@@ -28,6 +28,7 @@ import numpy as np
 
 def occlusion_ablation() -> None:
     from usd_gs.evaluation.relight_groundtruth import relight_ground_truth
+    from usd_gs.relight import avatar
     from usd_gs.relight import parallax as pp
 
     scenes = ((True, True), (False, True), (True, False), (False, False))
@@ -37,15 +38,16 @@ def occlusion_ablation() -> None:
 
     print("1. parallax occlusion test, relit PSNR dB (props+lamp / lamp / props / neither)")
     reproject, default_cos = pp.reprojected_probes, pp._MIN_SPLAT_COS
-    try:  # the main job's code path (avatar_relight imports reprojected_probes at call time)
+    try:  # the main job's code path: usd_gs.relight.avatar calls its own import of reprojected_probes
         for label, size, cos in (("none", None, default_cos), ("z-buffer 16", 16, default_cos),
                                  ("z-buffer 32 (default)", 32, default_cos), ("z-buffer 64", 64, default_cos),
                                  ("32, every texel a disc", 32, -2.0)):
-            pp.reprojected_probes = lambda tex, pts, degree, _s=size: reproject(tex, pts, degree, occlusion_size=_s)
+            avatar.reprojected_probes = lambda tex, pts, degree, _s=size: reproject(tex, pts, degree,
+                                                                                    occlusion_size=_s)
             pp._MIN_SPLAT_COS = cos
             print(f"   {label:<24}" + " / ".join(f"{v:.2f}" for v in run()))
     finally:
-        pp.reprojected_probes, pp._MIN_SPLAT_COS = reproject, default_cos
+        avatar.reprojected_probes, pp._MIN_SPLAT_COS = reproject, default_cos
 
 
 def lamp_energy() -> None:
