@@ -2,7 +2,7 @@
 
 Usage (from the repo root; ../shared/data present; Embree through the eval extra):
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_outdoor_groundtruth.py [--quick] [--skip-indoor]
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_outdoor_groundtruth.py [--quick] [--skip-indoor] [--skip-outdoor]
 
 1. outdoor (``usd_gs.evaluation.outdoor_groundtruth``): the CIE clear sky with a 0.53 degree sun,
    ``kiara_1_dawn_1k.hdr`` with its sun replaced by the analytic one, and the CIE overcast sky;
@@ -10,7 +10,8 @@ Usage (from the repo root; ../shared/data present; Embree through the eval extra
    self). Printed: relit PSNR (linear ``albedo E / pi`` and sRGB display), unrelit, with the mesh
    normals, and the timings;
 2. indoor: the four known-light configurations of ``relight_groundtruth.relight_ground_truth``
-   (props + lamp / lamp / props / neither) at the default size, the no-regression figures.
+   (props + lamp / lamp / props / neither) at the default size, the no-regression figures, with
+   the probe's far field (the main job's default) and without it.
 """
 
 from __future__ import annotations
@@ -37,19 +38,24 @@ def outdoor(quick: bool) -> None:
 def indoor() -> None:
     from usd_gs.evaluation.relight_groundtruth import relight_ground_truth
 
-    print("indoor known-light ground truth, default size (PSNR dB relit / unrelit)")
+    print("indoor known-light ground truth, default size (PSNR dB): relit / relit with the probe's far field off "
+          "(probe_far_radius 0; the environment's dome lies 30 m away, beyond the default 15 m) / change / unrelit")
     for name, kw in (("props + lamp", dict(lamp=True, props=True)), ("lamp", dict(lamp=True, props=False)),
                      ("props", dict(lamp=False, props=True)), ("neither", dict(lamp=False, props=False))):
         r = relight_ground_truth(metrics=False, **kw)
-        print(f"  {name:13s} {r['psnr_relit']:5.2f} / {r['psnr_orig']:5.2f}", flush=True)
+        off = relight_ground_truth(metrics=False, far_radius=0.0, **kw)
+        print(f"  {name:13s} {r['psnr_relit']:6.3f} / {off['psnr_relit']:6.3f} / "
+              f"{r['psnr_relit'] - off['psnr_relit']:+6.3f} / {r['psnr_orig']:5.2f}", flush=True)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small outdoor sizes (1500 avatar, 6000 scene Gaussians)")
     ap.add_argument("--skip-indoor", action="store_true")
+    ap.add_argument("--skip-outdoor", action="store_true")
     a = ap.parse_args()
-    outdoor(a.quick)
+    if not a.skip_outdoor:
+        outdoor(a.quick)
     if not a.skip_indoor:
         indoor()
 

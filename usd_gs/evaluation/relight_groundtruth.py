@@ -52,6 +52,7 @@ from usd_gs.io import envmap
 from usd_gs.io.gltf import load_skinned_mesh
 from usd_gs.pipeline.shot import ProcessOptions
 from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.far_field import FarField
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import PROBE_DILATION, hdr_dome_gaussians
 from usd_gs.shadows.shading import scale_sh
@@ -331,7 +332,10 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
     Calls what ``ShotProcessor._relight`` calls, with ``ProcessOptions`` (defaults if None):
     outward ``gaussian_normals`` (or the given ``normals`` (N, 3)), ``ProbeBlend`` and
     ``usd_gs.relight.avatar.relight_factors`` at the alpha-weighted centroid with ``others``
-    drawn, and the relit colour factor applied to the SH. ``dilation``: the probe render's low-pass
+    drawn (the static scene, in metres: those beyond ``probe_far_radius`` from the probe's far-field
+    anchor drawn into its far layer, ``usd_gs.relight.far_field``, as the main job draws a shot's
+    static Gaussians; ``probe_far_radius`` 0: all in one render), and the relit colour factor
+    applied to the SH. ``dilation``: the probe render's low-pass
     term in px^2 (None: its default, which is what the main job uses). ``lights`` /
     ``visibility`` / ``appearance``: as ``relight_factors`` takes them; ``others_mask`` (bool,
     ``others.count``): which of ``others`` the probe draws (None: all).
@@ -346,21 +350,24 @@ def relight_like_process(avatar: GaussianSet, others: GaussianSet, options=None,
         mask[:others.count] = np.asarray(others_mask, bool)
     if normals is None:
         normals = gaussian_normals(avatar.positions, avatar.orientations, avatar.scales, avatar.opacities)
+    far = FarField(o.probe_far_radius, o.probe_far_tolerance, others.count) if o.probe_far_radius > 0 else None
     scale, probe = relight_factors(avatar, everything, mask, centre, normals,
                                    ProbeBlend.build(avatar.positions, o.probe_points), o,
                                    PROBE_DILATION if dilation is None else dilation, lights=lights,
-                                   visibility=visibility, appearance=appearance)
+                                   visibility=visibility, appearance=appearance, far=far)
     return scale_sh(avatar.sh, scale), probe, normals
 
 
 def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=(16, 32), hdr=None,
                          probe_size: int | None = None, lamp: bool = True, metrics: bool = True,
                          dilation: float | None = None, props: bool = True, oversample: int = 2,
-                         env_scale: float = 1.0, probe_supersample: int | None = None, seed: int = 0) -> dict:
+                         env_scale: float = 1.0, probe_supersample: int | None = None, seed: int = 0,
+                         far_radius: float | None = None) -> dict:
     """Relight the known-albedo avatar in the known-light scene and compare with the ground truth.
 
     ``lamp=False``: environment only (the lamp's intensity is 0). ``probe_size``: cube-face size
-    (default ``ProcessOptions().probe_size``); ``probe_supersample`` likewise (``ProcessOptions``).
+    (default ``ProcessOptions().probe_size``); ``probe_supersample`` and ``far_radius``
+    (``probe_far_radius``, metres; the environment's dome lies 30 m away) likewise (``ProcessOptions``).
     ``dilation``: see :func:`relight_like_process`.
     ``props``: the two spheres near the avatar (:data:`SPHERES`). ``oversample``: directions per
     environment texel and axis in the ground truth's quadrature (2: within 51 dB of 4, against
@@ -396,6 +403,8 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
         opts = replace(opts, probe_size=int(probe_size))
     if probe_supersample is not None:
         opts = replace(opts, probe_supersample=int(probe_supersample))
+    if far_radius is not None:
+        opts = replace(opts, probe_far_radius=float(far_radius))
     t0 = time.perf_counter()
     sh, probe, normals = relight_like_process(avatar, scene.everything, opts, dilation)
     t["relight"] = time.perf_counter() - t0

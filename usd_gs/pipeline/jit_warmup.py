@@ -33,6 +33,7 @@ import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
 from numba_kernels.capsule import within_capsule
+from numba_kernels.cube_warp import warp_layer
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.pipeline.options import ProcessOptions
@@ -198,6 +199,8 @@ def warm_up(groups=GROUPS) -> None:
         # the far field's ball tests over the static part (FarLayers.clear, block by block)
         layers = FarLayers(blocks=PointBlocks(block_starts([(0, scene.count)])))
         layers.clear(everything.positions[:scene.count], centre, 0.5, 1.0)
+        flat = np.zeros((6, 2, 2), np.float32)  # and its layer moved to the probe's centre
+        warp_layer(np.zeros((6, 2, 2, 3), np.float32), flat, flat, np.zeros(3), centre, 1.0)
         _mark("relight")
     if "shadows" in groups:
         out = np.ones((4, atlas.K), np.float32)

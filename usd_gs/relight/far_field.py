@@ -16,19 +16,27 @@ directions move by ``offset / distance``), yet a render per frame draws every on
   relit prims of a shot (:class:`FarLayers`): the static part and its mask are the same for all;
 - **near render**: everything else the probe draws (the dynamic prims, the static Gaussians
   within ``radius`` of ``a``), from the probe centre itself, every frame;
-- the two composited, the near layer over the far one (premultiplied colour, alpha, expected
-  depth: ``usd_gs.render.rasterize.render_cube_faces``): ``rgb = rgb_n + (1 - a_n) rgb_f``,
-  ``alpha = 1 - (1 - a_n)(1 - a_f)``, depth alpha-weighted.
+- the far layer moved from the anchor to the probe centre by its depth
+  (``numba_kernels.cube_warp.warp_layer``: each texel of the centre's cube takes the far point the
+  anchor saw in that direction), then the two composited, the near layer over the far one
+  (premultiplied colour, alpha, expected depth: ``usd_gs.render.rasterize.render_cube_faces``):
+  ``rgb = rgb_n + (1 - a_n) rgb_f``, ``alpha = 1 - (1 - a_n)(1 - a_f)``, depth alpha-weighted.
 
-Approximations (measured against the full render in tests/test_far_field.py and
-docs/benchmarks.md): the far layer is seen from the anchor, at most ``sqrt(3)/2 * tolerance *
-radius * 2^L`` from the centre, and its Gaussians are at least ``radius * 2^L`` from it, so a far
-Gaussian's direction is off by at most about ``0.87 * tolerance`` radians (2.5 deg at the default
-0.05: below a 32-texel face's 2.8 deg texel); Gaussians within ``tolerance * radius`` of the
-boundary sphere may composite in the wrong order; with supersampling the layers are composited
-after the box filter. The anchor depends only on the frame's probe centre and the static scene
-(not on what was rendered before), so a farm chunk renders what the whole-shot run renders.
-Where no static Gaussian lies beyond ``radius`` the result is the full render's, bit for bit.
+Approximations (measured against the full render in tests/test_far_field.py,
+tests/test_cube_warp.py and docs/benchmarks.md): the far layer is rendered from the anchor, at
+most ``sqrt(3)/2 * tolerance * radius * 2^L`` from the centre, and its Gaussians are at least
+``radius * 2^L`` from it. Seen from the anchor unmoved, a far Gaussian's direction would be off by
+up to about ``0.87 * tolerance`` radians (2.5 deg at the default 0.05, under a 32-texel face's
+2.8 deg texel); the warp puts far content at the distance its texel holds in its true direction,
+so what remains is that bound times the spread of a texel's distances (``r1 (1/r1 - 1/r2)`` for
+Gaussians at ``r1 < r2`` in one texel: 0 for a sky dome at one distance), plus the warp's bilinear
+resampling (what either does to the relit colour: docs/benchmarks.md, "Probe far field"; a
+bright far light low behind near geometry, such as a low sun, is where it shows). Gaussians
+within ``tolerance * radius`` of the boundary sphere may composite in the wrong order; with
+supersampling the layers are composited after the box filter. The anchor depends only on the
+frame's probe centre and the static scene (not on what was rendered before), so a farm chunk
+renders what the whole-shot run renders. Where no static Gaussian lies beyond ``radius`` the
+result is the full render's, bit for bit.
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ import threading
 
 import numpy as np
 
+from numba_kernels.cube_warp import warp_layer
 from usd_gs.point_blocks import PointBlocks, within_ball
 from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_faces
 
@@ -164,7 +173,7 @@ class FarField:
     def render(self, everything, centre, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
                supersample: int = PROBE_SUPERSAMPLE) -> tuple:
         """``render_probe_faces(everything, centre, size, mask, dilation, supersample)``, with the
-        static Gaussians far from the anchor taken from the cached far layer."""
+        static Gaussians far from the anchor taken from the cached far layer, moved to ``centre``."""
         mask = np.asarray(mask, bool)
         s = self.static_count
         static = everything.positions[:s]
@@ -188,4 +197,4 @@ class FarField:
             return render_probe_faces(everything, centre, size, mask, dilation, supersample)
         order = np.concatenate([near, s + np.flatnonzero(mask[s:])])  # (increasing: static first)
         return composite_faces(render_probe_faces(everything, centre, size, None, dilation, supersample, order=order),
-                               faces)
+                               warp_layer(*faces, a, centre, self.radius * 2.0 ** self.level))
