@@ -45,16 +45,21 @@ PROBE_SH = "usdgs:probe:shCoefficients"
 PROBE_TEXTURE = "usdgs:probe:texture"
 
 
+def _row_display_changes(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) float32 per particle: the bound of :func:`sh_display_change` over its channels."""
+    k = a.shape[1]
+    bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
+    ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
+    d = np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))  # (no copies of float32 inputs)
+    return np.einsum("nkc,k->nc", d, ymax).max(axis=1, initial=0.0)
+
+
 def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
     """Upper bound of the largest display-colour difference, over particles, channels and view
     directions, between two SH sets ``a``, ``b`` (N, K, 3) in the 3DGS basis (colour =
     0.5 + sum_k c_k Y_k(d)): ``max sum_k |a_k - b_k| max_d |Y_k(d)|`` with
     ``max_d |Y_lm(d)| <= sqrt((2l + 1) / (4 pi))``."""
-    k = a.shape[1]
-    bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
-    ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
-    d = np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))  # (no copies of float32 inputs)
-    return float(np.max(np.einsum("nkc,k->nc", d, ymax), initial=0.0))
+    return float(np.max(_row_display_changes(a, b), initial=0.0))
 
 
 #: elements compared at a time by :func:`same_values` and :func:`sh_display_within` (a change is
@@ -73,11 +78,7 @@ def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.
     """(P,) float64: :func:`sh_display_change` of each prim's rows ``offsets[i]:offsets[i + 1]`` of
     ``a``, ``b`` (M, K, 3), in one pass (0 for a prim without rows)."""
     offsets = np.asarray(offsets, np.int64)
-    k = a.shape[1]
-    bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
-    ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
-    d = np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))
-    rows = np.einsum("nkc,k->nc", d, ymax).max(axis=1, initial=0.0)
+    rows = _row_display_changes(a, b)
     counts = np.diff(offsets)
     out = np.zeros(len(counts), np.float64)
     full = counts > 0
