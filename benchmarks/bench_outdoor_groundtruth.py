@@ -3,6 +3,7 @@
 Usage (from the repo root; ../shared/data present; Embree through the eval extra):
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_outdoor_groundtruth.py [--quick] [--skip-indoor] [--skip-outdoor]
+        [--far-tolerance T]
 
 1. outdoor (``usd_gs.evaluation.outdoor_groundtruth``): the CIE clear sky with a 0.53 degree sun,
    ``kiara_1_dawn_1k.hdr`` with its sun replaced by the analytic one, and the CIE overcast sky;
@@ -35,14 +36,14 @@ def outdoor(quick: bool) -> None:
               + ", ".join(f"{k} {v:.1f}" for k, v in r["timings"].items()) + ")", flush=True)
 
 
-def indoor() -> None:
+def indoor(far_tolerance: float | None = None) -> None:
     from usd_gs.evaluation.relight_groundtruth import relight_ground_truth
 
     print("indoor known-light ground truth, default size (PSNR dB): relit / relit with the probe's far field off "
           "(probe_far_radius 0; the environment's dome lies 30 m away, beyond the default 15 m) / change / unrelit")
     for name, kw in (("props + lamp", dict(lamp=True, props=True)), ("lamp", dict(lamp=True, props=False)),
                      ("props", dict(lamp=False, props=True)), ("neither", dict(lamp=False, props=False))):
-        r = relight_ground_truth(metrics=False, **kw)
+        r = relight_ground_truth(metrics=False, far_tolerance=far_tolerance, **kw)
         off = relight_ground_truth(metrics=False, far_radius=0.0, **kw)
         print(f"  {name:13s} {r['psnr_relit']:6.3f} / {off['psnr_relit']:6.3f} / "
               f"{r['psnr_relit'] - off['psnr_relit']:+6.3f} / {r['psnr_orig']:5.2f}", flush=True)
@@ -53,11 +54,13 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="small outdoor sizes (1500 avatar, 6000 scene Gaussians)")
     ap.add_argument("--skip-indoor", action="store_true")
     ap.add_argument("--skip-outdoor", action="store_true")
+    ap.add_argument("--far-tolerance", type=float, default=None,
+                    help="indoor: the far field's probe_far_tolerance (default: the main job's)")
     a = ap.parse_args()
     if not a.skip_outdoor:
         outdoor(a.quick)
     if not a.skip_indoor:
-        indoor()
+        indoor(a.far_tolerance)
 
 
 if __name__ == "__main__":

@@ -362,12 +362,13 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
                          probe_size: int | None = None, lamp: bool = True, metrics: bool = True,
                          dilation: float | None = None, props: bool = True, oversample: int = 2,
                          env_scale: float = 1.0, probe_supersample: int | None = None, seed: int = 0,
-                         far_radius: float | None = None) -> dict:
+                         far_radius: float | None = None, far_tolerance: float | None = None) -> dict:
     """Relight the known-albedo avatar in the known-light scene and compare with the ground truth.
 
     ``lamp=False``: environment only (the lamp's intensity is 0). ``probe_size``: cube-face size
-    (default ``ProcessOptions().probe_size``); ``probe_supersample`` and ``far_radius``
-    (``probe_far_radius``, metres; the environment's dome lies 30 m away) likewise (``ProcessOptions``).
+    (default ``ProcessOptions().probe_size``); ``probe_supersample``, ``far_radius``
+    (``probe_far_radius``, metres; the environment's dome lies 30 m away) and ``far_tolerance``
+    (``probe_far_tolerance``) likewise (``ProcessOptions``).
     ``dilation``: see :func:`relight_like_process`.
     ``props``: the two spheres near the avatar (:data:`SPHERES`). ``oversample``: directions per
     environment texel and axis in the ground truth's quadrature (2: within 51 dB of 4, against
@@ -405,6 +406,8 @@ def relight_ground_truth(n_avatar: int = 4000, n_surface: int = 12000, env_size=
         opts = replace(opts, probe_supersample=int(probe_supersample))
     if far_radius is not None:
         opts = replace(opts, probe_far_radius=float(far_radius))
+    if far_tolerance is not None:
+        opts = replace(opts, probe_far_tolerance=float(far_tolerance))
     t0 = time.perf_counter()
     sh, probe, normals = relight_like_process(avatar, scene.everything, opts, dilation)
     t["relight"] = time.perf_counter() - t0
