@@ -32,6 +32,7 @@ from .cubemap_dirs import FACE_FRAMES
 #: sampled alpha at or below which the far distance there is taken as the clearance (module docstring)
 ALPHA_EMPTY = 1e-6
 
+
 @njit(cache=True, fastmath=False)
 def _face_xy(frames, size, dx, dy, dz):
     """(face, x, y): the face a direction falls on (major axis, ties toward X then Y, as
@@ -102,11 +103,11 @@ def _warp(rgb, alpha, depth, source, target, clearance, steps, frames, out_rgb, 
                 w0, w1, w2 = ws[f, i, j, 0], ws[f, i, j, 1], ws[f, i, j, 2]
                 b = w0 * o0 + w1 * o1 + w2 * o2
                 t = _distance(planes[f, i, j], clearance)
-                for _ in range(steps + 1):
+                for step in range(steps + 1):  # (the last sample is the output's)
                     p0, p1, p2 = o0 + t * w0, o1 + t * w1, o2 + t * w2
                     pn = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
                     _sample(planes, frames, p0 / pn, p1 / pn, p2 / pn, s)
-                    if _ < steps:
+                    if step < steps:
                         r = _distance(s, clearance)
                         t = -b + math.sqrt(max(b * b - c2 + r * r, 0.0))
                 for c in range(3):
