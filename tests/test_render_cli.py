@@ -276,3 +276,37 @@ def test_frames_outside_the_stage_range_warn(processed, tmp_path, capsys):
     assert (tmp_path / "r_0099.png").exists()
     assert main(["render", str(processed), "-o", str(tmp_path / "s_####.png"), "--frames", "1-2", "--width", "32"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_fallback_camera_frames_the_capture_not_its_stray_splats(tmp_path):
+    """A 1 m cluster of 5,000 Gaussians and 20 stray ones 30-40 m away (a capture's floaters): the
+    default look-at camera frames the cluster (the 1st-99th percentile of the centres on each axis),
+    which then fills most of the image height, where the union of the bounds would leave it a few
+    pixels; a prim that moves widens the box to every rendered frame's centres."""
+    from usd_gs.render.preview import gaussian_framing_bounds, gaussian_world_bounds
+
+    stage = new_stage(up_axis="Y", default_prim="W")
+    UsdGeom.Xform.Define(stage, "/W")
+    g = random_gaussians(5020, degree=0, seed=4)
+    rng = np.random.default_rng(4)
+    g.positions[:5000] = rng.uniform(-0.5, 0.5, (5000, 3)).astype(np.float32)
+    d = rng.normal(size=(20, 3))
+    d *= rng.uniform(30, 40, (20, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
+    g.positions[5000:] = d.astype(np.float32)
+    write_gaussian_prim(stage, "/W/G", g, keep_raw=False)
+    lo, hi = gaussian_framing_bounds(stage, [1.0])
+    assert np.all(lo > -0.5) and np.all(lo < -0.45) and np.all(hi < 0.5) and np.all(hi > 0.45)
+    assert np.all(gaussian_world_bounds(stage, [1.0])[1] > 20.0)  # (the union: the strays)
+    cam = resolve_camera(stage, None, 1.0, 160)
+    uv, depth = cam.project(g.positions[:5000].astype(np.float64))
+    assert np.all(depth > cam.near) and np.all((uv[:, 1] >= 0) & (uv[:, 1] <= cam.height))
+    assert np.ptp(uv[:, 1]) > 0.5 * cam.height
+    # a second prim, moving 3 m along x between frames 1 and 2: its centres at both frames are framed
+    m = random_gaussians(500, degree=0, seed=5)
+    m.positions[:] = rng.uniform(-0.1, 0.1, (500, 3)).astype(np.float32)
+    write_gaussian_prim(stage, "/W/M", m, keep_raw=False)
+    op = UsdGeom.Xformable(stage.GetPrimAtPath("/W/M")).AddTranslateOp()
+    op.Set(Gf.Vec3d(0, 0, 0), Usd.TimeCode(1))
+    op.Set(Gf.Vec3d(3, 0, 0), Usd.TimeCode(2))
+    lo, hi = gaussian_framing_bounds(stage, [1.0, 2.0])
+    assert hi[0] > 2.9 and lo[0] < -0.45

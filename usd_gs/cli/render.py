@@ -154,15 +154,16 @@ def register_render(sub, formatter):
                     "guide/proxy purpose and invisible prims skipped) with the CPU splat rasteriser. Works on an "
                     "input stage or on the output of 'usdgs process' (which shows the shadows and relighting). "
                     "Camera: --camera, else the stage's first UsdGeom.Camera in path order, else a look-at camera "
-                    "framing the union of the Gaussians' world bounds over the rendered frames (16:9, 50 degrees "
-                    "vertical field of view, looking from front-right-above). PNGs hold the 3DGS display-referred "
+                    "framing the Gaussians' centres over the rendered frames, all but the outermost 1 % on each axis "
+                    "(a capture's stray splats do not push it away; 16:9, 50 degrees vertical field of view, "
+                    "looking from front-right-above). PNGs hold the 3DGS display-referred "
                     "colours as they are (no sRGB curve); --exr writes the same values as float RGBA.")
     p.add_argument("stage", help="USD stage (an input, or the output of 'usdgs process')")
     p.add_argument("-o", "--output", required=True,
                    help="output file pattern; a run of '#' is replaced by the zero-padded frame number "
                         "(out_####.png -> out_0001.png); needed when rendering more than one frame")
     p.add_argument("--camera", metavar="PATH", help="UsdGeom.Camera prim (default: the first camera in the stage, "
-                                                    "else a look-at camera framing all Gaussians)")
+                                                    "else a look-at camera framing the Gaussians)")
     p.add_argument("--frames", help="frames: A-B, A:B:STEP, N, or a comma list (default: the stage's start frame)")
     p.add_argument("--width", type=int, default=960,
                    help="image width in pixels (1..16384); height from the camera aperture")

@@ -13,6 +13,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "camera_prims": "preview",
     "drawn_gaussian_prims": "preview",
     "framing_camera": "preview",
+    "gaussian_framing_bounds": "preview",
     "gaussian_world_bounds": "preview",
     "input_stage": "preview",
     "input_stage_path": "preview",

@@ -13,8 +13,9 @@ stage composes to, so rendering the output stage shows the lit result and render
 first sublayer (:func:`input_stage`) shows the original.
 
 Cameras (:func:`resolve_camera`): a ``UsdGeom.Camera`` prim given by path; by default the
-first camera prim of the stage in path order; with none, a look-at camera that frames the
-union of the Gaussian prims' world bounds (:func:`framing_camera`). Image width is chosen by
+first camera prim of the stage in path order; with none, a look-at camera (:func:`framing_camera`)
+that frames all but the outermost 1 % of the drawn Gaussians' centres on each axis
+(:func:`gaussian_framing_bounds`). Image width is chosen by
 the caller; height follows the camera aperture (``width * verticalAperture /
 horizontalAperture``), 16:9 for the look-at camera.
 
@@ -141,6 +142,62 @@ def gaussian_world_bounds(stage, frames) -> tuple[np.ndarray, np.ndarray] | None
     return lo, hi
 
 
+#: share of the drawn Gaussian centres left out on each side of each axis by the default framing
+#: (:func:`gaussian_framing_bounds`): a capture's stray splats and the 3-sigma reach of its large
+#: background splats do not push the look-at camera away from what the stage shows
+FRAMING_QUANTILE = 0.01
+#: centres sampled per prim and frame for the framing (every k-th, in order)
+FRAMING_SAMPLES = 20000
+
+
+def gaussian_framing_bounds(stage, frames) -> tuple[np.ndarray, np.ndarray] | None:
+    """(min (3,), max (3,)) float64 world box that the default look-at camera frames: per axis, the
+    :data:`FRAMING_QUANTILE` and ``1 - FRAMING_QUANTILE`` quantiles of the drawn Gaussian prims'
+    world-space centres over ``frames`` (up to :data:`FRAMING_SAMPLES` evenly spaced centres per
+    prim and frame, each prim's samples weighted by its count), widened to hold every skinned
+    prim's world bounds (their centres move with the skeleton). :func:`gaussian_world_bounds`
+    where no centre can be read; None when nothing is drawn."""
+    from pxr import UsdGeom
+
+    from usd_gs.usd.gaussian_layer import POSITIONS
+    from usd_gs.usd.gaussian_prim import _data_array, describe_gaussian_prim
+    from usd_gs.usd.skel import has_skel_binding
+
+    pts, weights, boxes = [], [], []
+    for f in frames:
+        tc = _tc(f)
+        for p in drawn_gaussian_prims(stage, tc):
+            if has_skel_binding(p):
+                b = describe_gaussian_prim(p, tc).world_bounds
+                if b is not None and np.all(np.isfinite(b[0])) and np.all(np.isfinite(b[1])):
+                    boxes.append(b)
+                continue
+            _, local = _data_array(p, POSITIONS, tc)
+            if local is None or len(local) == 0:
+                continue
+            local = np.asarray(local).reshape(-1, 3)
+            step = max(1, len(local) // FRAMING_SAMPLES)
+            m = np.array(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(tc), np.float64)
+            x = local[::step].astype(np.float64) @ m[:3, :3] + m[3, :3]
+            x = x[np.all(np.isfinite(x), axis=1)]
+            if len(x):
+                pts.append(x)
+                weights.append(np.full(len(x), len(local) / len(x)))
+    if not pts:
+        return gaussian_world_bounds(stage, frames)
+    x, w = np.concatenate(pts), np.concatenate(weights)
+    lo, hi = np.empty(3), np.empty(3)
+    for axis in range(3):
+        order = np.argsort(x[:, axis], kind="stable")
+        cum = np.cumsum(w[order])
+        cum /= cum[-1]
+        lo[axis] = x[order[np.searchsorted(cum, FRAMING_QUANTILE)], axis]
+        hi[axis] = x[order[min(np.searchsorted(cum, 1.0 - FRAMING_QUANTILE), len(order) - 1)], axis]
+    for b_lo, b_hi in boxes:
+        lo, hi = np.minimum(lo, b_lo), np.maximum(hi, b_hi)
+    return lo, hi
+
+
 # ----------------------------------------------------------------------------- cameras
 def framing_camera(lo, hi, width: int = DEFAULT_WIDTH, height: int | None = None, up_axis: str = "Y",
                    fov_y_deg: float = FALLBACK_FOV_Y_DEG) -> Camera:
@@ -181,8 +238,8 @@ def resolve_camera(stage, path: str | None = None, frame=None, width: int = DEFA
 
     ``path``: a ``UsdGeom.Camera`` prim path (``UserError`` naming the stage and path when
     there is no prim there or it is not a camera). None: the first camera prim in path
-    order, else :func:`framing_camera` around the drawn Gaussians' world bounds over
-    ``bounds_frames`` (default ``[frame]``; pass every frame of a sequence for a camera that
+    order, else :func:`framing_camera` around the drawn Gaussians' :func:`gaussian_framing_bounds`
+    over ``bounds_frames`` (default ``[frame]``; pass every frame of a sequence for a camera that
     does not move). ``width`` in pixels; height from the camera aperture.
     """
     from pxr import UsdGeom
@@ -203,7 +260,7 @@ def resolve_camera(stage, path: str | None = None, frame=None, width: int = DEFA
     cams = camera_prims(stage)
     if cams:
         return Camera.from_usd(cams[0], _tc(frame).GetValue() if frame is not None else None, width=width)
-    bounds = gaussian_world_bounds(stage, [frame] if bounds_frames is None else bounds_frames)
+    bounds = gaussian_framing_bounds(stage, [frame] if bounds_frames is None else bounds_frames)
     if bounds is None:
         raise UserError(f"{label}: no camera prim and no visible Gaussian prims to frame; pass --camera")
     up = str(UsdGeom.GetStageUpAxis(stage))
