@@ -272,8 +272,8 @@ def register_import(sub, formatter):
     p.add_argument("--up-axis", choices=("Y", "Z"), default="Y", help="stage upAxis metadata")
     p.add_argument("--meters-per-unit", type=float, default=1.0, help="stage metersPerUnit metadata")
     p.add_argument("--y-down", action="store_true",
-                   help="the capture is Y-down (OpenCV/COLMAP cameras: many .splat and .ply exports and the "
-                        "PlayCanvas SOG captures show upside down; check with 'usdgs render'): author "
+                   help="the capture is Y-down (OpenCV/COLMAP cameras: many .splat, .ply and PlayCanvas SOG "
+                        "captures show upside down; check with 'usdgs render'): author "
                         "xformOp:rotateX:yDown on the prim, 180 degrees for --up-axis Y, -90 for Z (the Gaussian "
                         "data is kept as it is; 'usdgs export --local' gives it back)")
     p.add_argument("--precision", choices=("float", "half"), default="float",
