@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from .cubemap_dirs import FACE_FRAMES
+from .direction_zbuffer import cube_face_uv
 
 #: sampled alpha at or below which the far distance there is taken as the clearance (module docstring)
 ALPHA_EMPTY = 1e-6
@@ -35,20 +36,9 @@ ALPHA_EMPTY = 1e-6
 
 @njit(cache=True, fastmath=False)
 def _face_xy(frames, size, dx, dy, dz):
-    """(face, x, y): the face a direction falls on (major axis, ties toward X then Y, as
-    ``cubemap_dirs.direction_to_face_uv``) and its continuous texel coordinates, clamped."""
-    ax, ay, az = abs(dx), abs(dy), abs(dz)
-    if ax >= ay and ax >= az:
-        f = 0 if dx >= 0.0 else 1
-    elif ay >= az:
-        f = 2 if dy >= 0.0 else 3
-    else:
-        f = 4 if dz >= 0.0 else 5
-    fwd = frames[f, 0, 0] * dx + frames[f, 0, 1] * dy + frames[f, 0, 2] * dz
-    u = (frames[f, 1, 0] * dx + frames[f, 1, 1] * dy + frames[f, 1, 2] * dz) / fwd
-    v = (frames[f, 2, 0] * dx + frames[f, 2, 1] * dy + frames[f, 2, 2] * dz) / fwd
-    u = min(max(u, -1.0), 1.0)
-    v = min(max(v, -1.0), 1.0)
+    """(face, x, y): the face a direction falls on (``direction_zbuffer.cube_face_uv``) and its
+    continuous texel coordinates, clamped to the face's texel centres."""
+    f, _, u, v = cube_face_uv(frames, dx, dy, dz)
     x = min(max((u + 1.0) * (0.5 * size) - 0.5, 0.0), size - 1.0)
     y = min(max((v + 1.0) * (0.5 * size) - 0.5, 0.0), size - 1.0)
     return f, x, y

@@ -104,3 +104,24 @@ def direction_to_face_uv(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     u = np.einsum("...k,...k->...", d, frames[..., 1, :]) / fwd_dot
     v = np.einsum("...k,...k->...", d, frames[..., 2, :]) / fwd_dot
     return face.astype(np.int64), np.clip(u, -1.0, 1.0), np.clip(v, -1.0, 1.0)
+
+
+def sample_cube_faces(faces: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Bilinear samples (..., C) float64 of cube ``faces`` (6, S, S, C) at directions ``dirs``
+    (..., 3): within the face each direction falls on (:func:`direction_to_face_uv`), texel
+    centres at ``j = (u + 1) S / 2 - 1/2``, clamped to the face's edge texels (within half a texel
+    of a seam the nearer face's edge stands for its neighbour)."""
+    size = faces.shape[1]
+    f, u, v = direction_to_face_uv(dirs)
+    x = np.clip((u + 1.0) * 0.5 * size - 0.5, 0.0, size - 1.0)
+    y = np.clip((v + 1.0) * 0.5 * size - 0.5, 0.0, size - 1.0)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    x1 = np.minimum(x0 + 1, size - 1)
+    y1 = np.minimum(y0 + 1, size - 1)
+    fx = (x - x0)[..., None]
+    fy = (y - y0)[..., None]
+    im = np.asarray(faces).astype(np.float64, copy=False)
+    top = im[f, y0, x0] * (1.0 - fx) + im[f, y0, x1] * fx
+    bot = im[f, y1, x0] * (1.0 - fx) + im[f, y1, x1] * fx
+    return top * (1.0 - fy) + bot * fy

@@ -81,7 +81,10 @@ def light_basis(direction) -> np.ndarray:
 
 
 @njit(cache=True, fastmath=False)
-def _coords(x, y, z, c, B, S, h, tb, ds):
+def lattice_coords(x, y, z, c, B, S, h, tb, ds):
+    """Continuous pixel and bin coordinates ``(fx, fy, fk)`` of point (x, y, z) in the light-space
+    lattice with origin ``c``, rows of ``B`` (e1, e2, light direction), pixel size ``h``, the atlas's
+    side ``S`` centred (0: a lattice centred on ``c``), first bin at ``tb``, bin size ``ds``."""
     rx, ry, rz = x - c[0], y - c[1], z - c[2]
     p1 = rx * B[0, 0] + ry * B[0, 1] + rz * B[0, 2]
     p2 = rx * B[1, 0] + ry * B[1, 1] + rz * B[1, 2]
@@ -92,7 +95,7 @@ def _coords(x, y, z, c, B, S, h, tb, ds):
 @njit(cache=True, parallel=prange_only(), fastmath=False)
 def _stencils(pts, c, B, w, K, S, h, tb, ds, pix, kk):
     for m in prange(pts.shape[0]):
-        fx, fy, fk = _coords(pts[m, 0], pts[m, 1], pts[m, 2], c, B, S, h, tb, ds)
+        fx, fy, fk = lattice_coords(pts[m, 0], pts[m, 1], pts[m, 2], c, B, S, h, tb, ds)
         i0 = min(max(int(math.floor(fx)), 0), w - 2)
         j0 = min(max(int(math.floor(fy)), 0), w - 2)
         n = 0
@@ -110,7 +113,7 @@ def _stencils(pts, c, B, w, K, S, h, tb, ds, pix, kk):
 def _circles(i0_, i1_, mu, cov, c, B, S, h, k_sigma, circ):
     """Rows i0_..i1_-1 of ``circ``: grid-plane centre, culling radius and projected-ellipse conic."""
     for i in range(i0_, i1_):
-        fx, fy, _ = _coords(mu[i, 0], mu[i, 1], mu[i, 2], c, B, S, h, 0.0, 1.0)
+        fx, fy, _ = lattice_coords(mu[i, 0], mu[i, 1], mu[i, 2], c, B, S, h, 0.0, 1.0)
         s00, s01, s02, s11, s12, s22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
         p = 0.0
         q = 0.0
@@ -361,7 +364,7 @@ def build_directional(direction, occ, dir_dep: int, cov6, roi_points, width: int
 @njit(cache=True, parallel=prange_only(), fastmath=False)
 def _lookup(index, values, w, K, kmin, kmax, c, B, S, h, tb, ds, pts, out):
     for m in prange(pts.shape[0]):
-        fx, fy, fk = _coords(pts[m, 0], pts[m, 1], pts[m, 2], c, B, S, h, tb, ds)
+        fx, fy, fk = lattice_coords(pts[m, 0], pts[m, 1], pts[m, 2], c, B, S, h, tb, ds)
         fx = min(max(fx, 0.0), w - 1.0)
         fy = min(max(fy, 0.0), w - 1.0)
         fk = min(max(fk, 0.0), K - 1.0)

@@ -25,6 +25,24 @@ from numba import njit
 from .cubemap_dirs import FACE_FRAMES
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def cube_face_uv(frames, x, y, z):
+    """``(face, fw, u, v)`` of direction (x, y, z) on the cube ``frames`` (``FACE_FRAMES``): the face
+    of its major axis (ties toward X then Y), ``fw`` its component along that face's forward axis
+    and ``u = <d, right> / fw``, ``v = <d, down> / fw`` (not clamped)."""
+    ax, ay, az = abs(x), abs(y), abs(z)
+    if ax >= ay and ax >= az:
+        f = 0 if x > 0 else 1
+    elif ay >= az:
+        f = 2 if y > 0 else 3
+    else:
+        f = 4 if z > 0 else 5
+    fw = x * frames[f, 0, 0] + y * frames[f, 0, 1] + z * frames[f, 0, 2]
+    u = (x * frames[f, 1, 0] + y * frames[f, 1, 1] + z * frames[f, 1, 2]) / fw if fw != 0.0 else 0.0
+    v = (x * frames[f, 2, 0] + y * frames[f, 2, 1] + z * frames[f, 2, 2]) / fw if fw != 0.0 else 0.0
+    return f, fw, u, v
+
+
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _splat(dirs, dist, radius, frames, size, max_reach, out):
     for t in range(dirs.shape[0]):
@@ -62,20 +80,10 @@ def _splat(dirs, dist, radius, frames, size, max_reach, out):
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _own_texel_depth(dirs, zbuf, frames, size, out):
     for t in range(dirs.shape[0]):
-        x, y, z = dirs[t, 0], dirs[t, 1], dirs[t, 2]
-        ax, ay, az = abs(x), abs(y), abs(z)
-        if ax >= ay and ax >= az:
-            f = 0 if x > 0 else 1
-        elif ay >= az:
-            f = 2 if y > 0 else 3
-        else:
-            f = 4 if z > 0 else 5
-        fw = x * frames[f, 0, 0] + y * frames[f, 0, 1] + z * frames[f, 0, 2]
+        f, fw, u, v = cube_face_uv(frames, dirs[t, 0], dirs[t, 1], dirs[t, 2])
         if not fw > 0.0:
             out[t] = np.inf
             continue
-        u = (x * frames[f, 1, 0] + y * frames[f, 1, 1] + z * frames[f, 1, 2]) / fw
-        v = (x * frames[f, 2, 0] + y * frames[f, 2, 1] + z * frames[f, 2, 2]) / fw
         j = min(max(int(math.floor((u + 1.0) * 0.5 * size)), 0), size - 1)
         i = min(max(int(math.floor((v + 1.0) * 0.5 * size)), 0), size - 1)
         out[t] = zbuf[f, i, j]

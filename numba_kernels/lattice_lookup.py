@@ -26,6 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .dgsm_directional import lattice_coords
 from .jit_options import threaded
 from .thread_chunks import run_chunks
 
@@ -48,10 +49,7 @@ def _row(i, j, shift, mask, lo0, lo1, grid, pool):
 def _stencils(m0, m1, pts, c, basis, h, tb, ds, K, shift, lo0, lo1, grid, pool, ij0, w, k0, rows):
     mask = (1 << shift) - 1
     for m in range(m0, m1):
-        rx, ry, rz = pts[m, 0] - c[0], pts[m, 1] - c[1], pts[m, 2] - c[2]
-        fx = (rx * basis[0, 0] + ry * basis[0, 1] + rz * basis[0, 2]) / h - 0.5
-        fy = (rx * basis[1, 0] + ry * basis[1, 1] + rz * basis[1, 2]) / h - 0.5
-        fk = ((rx * basis[2, 0] + ry * basis[2, 1] + rz * basis[2, 2]) - tb) / ds - 0.5
+        fx, fy, fk = lattice_coords(pts[m, 0], pts[m, 1], pts[m, 2], c, basis, 0.0, h, tb, ds)  # (centred on c)
         fk = min(max(fk, 0.0), K - 1.0)
         i0, j0 = np.int64(math.floor(fx)), np.int64(math.floor(fy))
         kk = min(np.int64(math.floor(fk)), K - 2)
@@ -64,16 +62,18 @@ def _stencils(m0, m1, pts, c, basis, h, tb, ds, K, shift, lo0, lo1, grid, pool, 
         rows[3, m] = _row(i0 + 1, j0 + 1, shift, mask, lo0, lo1, grid, pool)
 
 
-def lattice_stencils(pts, c, basis, h: float, tb: float, ds: float, K: int, block: int, lo, grid, pool):
+def lattice_stencils(pts, c, basis, h: float, tb: float, ds: float, K: int, lo, grid, pool):
     """Stencils and corner rows of ``pts`` (M, 3) float64 (module doc): ``(ij0 (M, 2) int64, w (M, 3)
     float64 = (wx, wy, wk), k0 (M,) int64 in 0..K-2, rows (4, M) int64 in :data:`CORNERS` order, -1
-    where the column is not in the map)``. ``block`` a power of two, ``lo`` (2,) int64."""
+    where the column is not in the map)``. ``lo`` (2,) int64; ``pool`` (S, B, B) with B a power of
+    two (the block size)."""
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     m = pts.shape[0]
     ij0, w = np.empty((m, 2), np.int64), np.empty((m, 3))
     k0, rows = np.empty(m, np.int64), np.empty((4, m), np.int64)
+    shift = int(pool.shape[1]).bit_length() - 1
     run_chunks(_stencils, m, pts, np.asarray(c, np.float64), np.ascontiguousarray(basis, dtype=np.float64),
-               float(h), float(tb), float(ds), int(K), int(block).bit_length() - 1, int(lo[0]), int(lo[1]), grid, pool,
+               float(h), float(tb), float(ds), int(K), shift, int(lo[0]), int(lo[1]), grid, pool,
                ij0, w, k0, rows, min_chunk=8192)
     return ij0, w, k0, rows
 

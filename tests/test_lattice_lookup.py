@@ -41,7 +41,7 @@ def test_stencils_and_blend_equal_the_numpy_forms_bit_for_bit():
     h, tb, ds, K = 0.013, -2.5, 0.07, 48
     c = np.zeros(3)  # (the sun atlas's reference point)
     pts, index = _lattice(rng, basis, h, 20000)
-    got = lattice_stencils(pts, c, basis, h, tb, ds, K, BLOCK, *index.arrays())
+    got = lattice_stencils(pts, c, basis, h, tb, ds, K, *index.arrays())
     want = lattice_stencils_numpy(pts, c, basis, h, tb, ds, K, index.lookup)
     for a, b in zip(got, want, strict=True):
         np.testing.assert_array_equal(a, b)
@@ -61,7 +61,7 @@ def test_stencils_and_blend_equal_the_numpy_forms_bit_for_bit():
         np.testing.assert_array_equal(a, b)
     # a reference point off the origin
     c2 = np.array([0.2, -0.1, 0.05])
-    for a, b in zip(lattice_stencils(pts, c2, basis, h, tb, ds, K, BLOCK, *index.arrays()),
+    for a, b in zip(lattice_stencils(pts, c2, basis, h, tb, ds, K, *index.arrays()),
                     lattice_stencils_numpy(pts, c2, basis, h, tb, ds, K, index.lookup), strict=True):
         np.testing.assert_array_equal(a, b)
 
@@ -86,7 +86,7 @@ def test_blend_of_one_point_by_hand():
 def test_no_points():
     index = LatticeIndex()
     basis = light_basis(np.array([0.0, 0.0, -1.0]))
-    ij0, w, k0, rows = lattice_stencils(np.zeros((0, 3)), np.zeros(3), basis, 0.1, 0.0, 0.1, 8, BLOCK,
+    ij0, w, k0, rows = lattice_stencils(np.zeros((0, 3)), np.zeros(3), basis, 0.1, 0.0, 0.1, 8,
                                         *index.arrays())
     assert ij0.shape == (0, 2) and rows.shape == (4, 0)
     t, spread = lattice_interpolate(rows, np.ones((0, 8), np.float32), k0, w)

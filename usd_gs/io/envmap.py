@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from numba_kernels.cubemap_dirs import cube_face_directions, direction_to_face_uv
+from numba_kernels.cubemap_dirs import cube_face_directions, sample_cube_faces
 from usd_gs.errors import InputFormatError
 
 # --------------------------------------------------------------------------- conventions
@@ -98,20 +98,7 @@ def cube_faces_to_latlong(faces: np.ndarray, h: int = 256, w: int = 512) -> np.n
     faces = np.asarray(faces)
     if faces.ndim != 4 or faces.shape[0] != 6 or faces.shape[1] != faces.shape[2]:
         raise ValueError(f"cube faces must have shape (6, S, S, C), got {faces.shape}")
-    size = faces.shape[1]
-    f, u, v = direction_to_face_uv(latlong_directions(h, w))
-    x = np.clip((u + 1.0) * 0.5 * size - 0.5, 0.0, size - 1.0)
-    y = np.clip((v + 1.0) * 0.5 * size - 0.5, 0.0, size - 1.0)
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    x1 = np.minimum(x0 + 1, size - 1)
-    y1 = np.minimum(y0 + 1, size - 1)
-    fx = (x - x0)[..., None]
-    fy = (y - y0)[..., None]
-    im = faces.astype(np.float64, copy=False)
-    top = im[f, y0, x0] * (1.0 - fx) + im[f, y0, x1] * fx
-    bot = im[f, y1, x0] * (1.0 - fx) + im[f, y1, x1] * fx
-    return (top * (1.0 - fy) + bot * fy).astype(np.float32)
+    return sample_cube_faces(faces, latlong_directions(h, w)).astype(np.float32)
 
 
 def downsample_latlong(img: np.ndarray, factor: int) -> np.ndarray:

@@ -878,17 +878,26 @@ class ShotProcessor:
         prim; None: any) is not used. None where ``compute`` raises ``_NotAtAnchor`` (the prim's
         count at the anchor frame differs from this frame's: its value is this frame's, not the
         shot's)."""
-        cache = self.shot_cache
-        got = cache.get(*key) if cache is not None else None
-        if got is not None and (count is None or got[-1].shape[0] == count):
+        got = self._anchor_copy(key, count)
+        if got is not None:
             return got
         try:
             got = tuple(compute())
         except _NotAtAnchor:
             return None
-        if cache is not None:
-            cache.put(key, got)
+        if self.shot_cache is not None:
+            self.shot_cache.put(key, got)
         return got
+
+    def _anchor_copy(self, key: tuple, count: int | None = None, count_load: bool = True):
+        """The shot cache's copy under ``key`` that :meth:`_from_anchor` uses (its last array with
+        ``count`` rows; None: any), or None; ``count_load`` False: a look that is not counted as a
+        load (deciding whether something must be computed)."""
+        cache = self.shot_cache
+        if cache is None:
+            return None
+        got = cache.get(*key) if count_load else cache.peek(*key)
+        return got if got is not None and (count is None or got[-1].shape[0] == count) else None
 
     def _self_points(self, q: str, g, drecv: Receivers, light):
         """:func:`receiver_points` of a relit prim's own Gaussians for its own DGSM (self-shadowing,
@@ -937,20 +946,14 @@ class ShotProcessor:
         """The relit prims' normals that :meth:`_prim_local_normals` is about to estimate from this
         frame's Gaussians (``prims``: path -> set), estimated side by side in threads (the estimate
         has serial parts: one prim at a time leaves a core idle), kept for it in ``_normals_ahead``.
-        Only where it would estimate them from these sets: not for a prim that has normals, a
-        chunk's prim whose normals come from the anchor frame, or one the shot cache holds."""
-        cache, due = self.shot_cache, {}
+        Only where it would estimate them from these sets (:meth:`_normals_step`), and not where the
+        shot cache holds the shot's."""
+        due = {}
         for path, g in prims.items():
-            local = self._local_normals.get(path)
-            if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
-                continue  # read at the anchor frame
-            if local is not None and local.shape[0] == g.count:
-                continue
-            if local is None and cache is not None and frame == self._first_frame():
-                got = cache.peek("normals", path)
-                if got is not None and got[-1].shape[0] == g.count:
-                    continue  # (_from_anchor's rule)
-            due[path] = g
+            step = self._normals_step(path, g, frame)
+            if step == "estimate" or (step == "shot" and self._anchor_copy(("normals", path), g.count,
+                                                                           count_load=False) is None):
+                due[path] = g
         if len(due) > 1:
             jit_warmup.wait_for("relight")  # (a cold cache: the warm-up process compiles the normals' kernels)
             done = run_tasks([partial(_local_normals_of, g) for g in due.values()])
@@ -1294,20 +1297,34 @@ class ShotProcessor:
             ahead = self._normals_ahead.pop(path, None)  # (:meth:`_estimate_normals_ahead`)
             return (ahead[1] if ahead is not None and ahead[0] is h else _local_normals_of(h),)
 
-        if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
+        step = self._normals_step(path, g, frame)
+        if step == "anchor":
             def at_anchor():  # a chunk: normals and clusters from the shot's first frame
                 nonlocal first
                 first = self._read(path, self.anchor_frame)
                 return estimate(first)
 
-            local = self._from_anchor(("normals", path), at_anchor)[0]
-            self._local_normals[path] = local
-        if local is None or local.shape[0] != g.count:
-            anchored = local is None and frame == self._first_frame()
-            local = (self._from_anchor(("normals", path), partial(estimate, g), g.count) if anchored
+            local = self._local_normals[path] = self._from_anchor(("normals", path), at_anchor)[0]
+            if local.shape[0] != g.count:
+                step = "estimate"
+        if step in ("shot", "estimate"):
+            local = (self._from_anchor(("normals", path), partial(estimate, g), g.count) if step == "shot"
                      else estimate(g))[0]
             self._local_normals[path] = local
         return local, first
+
+    def _normals_step(self, path: str, g, frame: float) -> str:
+        """How :meth:`_prim_local_normals` gets relit prim ``path``'s normals for its set ``g`` at
+        ``frame``: ``'held'`` (the shot's, of ``g``'s count), ``'anchor'`` (a chunk's first sight of
+        the prim: from the shot's anchor frame), ``'shot'`` (the shot's first frame: estimated from
+        ``g`` as the shot's, or the shot cache's copy) or ``'estimate'`` (from ``g``: its count
+        changed, or a prim first seen after the first frame)."""
+        local = self._local_normals.get(path)
+        if local is None and self.anchor_frame is not None and self.anchor_frame != frame:
+            return "anchor"
+        if local is not None and local.shape[0] == g.count:
+            return "held"
+        return "shot" if local is None and frame == self._first_frame() else "estimate"
 
     def _relight_inputs(self, path, g, everything, span, frame, lights=(), spans=None) -> dict:
         """The keyword arguments of ``relight_factors`` for prim ``path`` at ``frame`` but its

@@ -123,6 +123,12 @@ def read_stage_gaussians(stage, frame=None) -> tuple[GaussianSet, list[str]]:
     return gs, [p.GetPath().pathString for p in prims]
 
 
+def _finite_world_bounds(info) -> tuple[np.ndarray, np.ndarray] | None:
+    """A prim description's ``world_bounds`` when it has finite ones, else None."""
+    b = info.world_bounds
+    return b if b is not None and np.all(np.isfinite(b[0])) and np.all(np.isfinite(b[1])) else None
+
+
 def gaussian_world_bounds(stage, frames) -> tuple[np.ndarray, np.ndarray] | None:
     """(min (3,), max (3,)) float64 union of the world bounds (authored ``extent``, else the
     centres) of the drawn Gaussian prims over ``frames``; None when there are none."""
@@ -133,8 +139,8 @@ def gaussian_world_bounds(stage, frames) -> tuple[np.ndarray, np.ndarray] | None
     for f in frames:
         tc = _tc(f)
         for p in drawn_gaussian_prims(stage, tc):
-            b = describe_gaussian_prim(p, tc).world_bounds
-            if b is not None and np.all(np.isfinite(b[0])) and np.all(np.isfinite(b[1])):
+            b = _finite_world_bounds(describe_gaussian_prim(p, tc))
+            if b is not None:
                 lo = np.minimum(lo, b[0])
                 hi = np.maximum(hi, b[1])
     if not np.all(hi >= lo):
@@ -160,7 +166,7 @@ def gaussian_framing_bounds(stage, frames) -> tuple[np.ndarray, np.ndarray] | No
     from pxr import UsdGeom
 
     from usd_gs.usd.gaussian_layer import POSITIONS
-    from usd_gs.usd.gaussian_prim import _data_array, describe_gaussian_prim
+    from usd_gs.usd.gaussian_prim import data_attribute, describe_gaussian_prim, read_array
     from usd_gs.usd.skel import has_skel_binding
 
     pts, weights, boxes = [], [], []
@@ -168,11 +174,11 @@ def gaussian_framing_bounds(stage, frames) -> tuple[np.ndarray, np.ndarray] | No
         tc = _tc(f)
         for p in drawn_gaussian_prims(stage, tc):
             if has_skel_binding(p):
-                b = describe_gaussian_prim(p, tc).world_bounds
-                if b is not None and np.all(np.isfinite(b[0])) and np.all(np.isfinite(b[1])):
+                b = _finite_world_bounds(describe_gaussian_prim(p, tc))
+                if b is not None:
                     boxes.append(b)
                 continue
-            _, local = _data_array(p, POSITIONS, tc)
+            local = read_array(data_attribute(p, POSITIONS)[0], tc)
             if local is None or len(local) == 0:
                 continue
             local = np.asarray(local).reshape(-1, 3)

@@ -34,7 +34,7 @@ from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from numba_kernels.lattice_lookup import CORNERS, lattice_interpolate, lattice_stencils
 from usd_gs.gaussians import GaussianSet
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
-from usd_gs.shadows.lattice_index import BLOCK, LatticeIndex
+from usd_gs.shadows.lattice_index import LatticeIndex
 
 
 class _ColumnStore:
@@ -327,13 +327,12 @@ class StaticSceneSunAtlas:
         hits = sat[a1, b1] - sat[a0, b1] - sat[a1, b0] + sat[a0, b0]
         return np.flatnonzero(hits > 0)
 
-    def _rows(self, ij: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    def _rows(self, ij: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """(M,) rows in the column store of the lattice pixels ``ij`` (M, 2), computing the voxel
         columns that are not there yet (each distinct pixel once). ``rows``: their rows as the map
-        already gave them (-1 where missing; filled in place), else looked up here."""
+        gave them (-1 where missing; filled in place)."""
         from numba_kernels import dgsm_directional as dd
 
-        rows = self._index.lookup(ij) if rows is None else rows
         miss = np.flatnonzero(rows < 0)
         if miss.size == 0:
             return rows
@@ -357,7 +356,7 @@ class StaticSceneSunAtlas:
         if self.count == 0 or pts.shape[0] == 0:
             return np.ones(pts.shape[0])
         index = self._index
-        ij0, w, k0, rows = lattice_stencils(pts, self.c, self.basis, self.h, self.tb, self.ds, self.K, BLOCK,
+        ij0, w, k0, rows = lattice_stencils(pts, self.c, self.basis, self.h, self.tb, self.ds, self.K,
                                             *index.arrays())
         if (rows < 0).any():  # columns no lookup needed before: computed now, in the corners' order
             ij = np.concatenate([ij0 + np.array(off) for off in CORNERS])

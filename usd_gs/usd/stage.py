@@ -144,13 +144,15 @@ def root_metadata_warnings(stage, name: str | None = None) -> list[str]:
     root = stage.GetRootLayer()
     name = name or root.identifier
     out = []
+    layers = None
     for key, meaning in _ROOT_ONLY.items():
         if root.pseudoRoot.HasInfo(key):
             continue
         value = stage.GetMetadata(key)
-        # its own sublayers first (in strength order), then the layers it references
-        layers = list(stage.GetLayerStack(includeSessionLayers=False))
-        layers += [lay for lay in stage.GetUsedLayers() if lay not in layers]
+        if layers is None:  # its own sublayers first (in strength order), then the layers it references
+            layers = list(stage.GetLayerStack(includeSessionLayers=False))
+            stack = set(layers)
+            layers += [lay for lay in stage.GetUsedLayers() if lay not in stack]
         for layer in layers:
             if layer == root or layer.anonymous or not layer.pseudoRoot.HasInfo(key):
                 continue
