@@ -236,22 +236,68 @@ def transfer_scale_quadrature(normals: np.ndarray, probe_rh: np.ndarray, q: floa
     return out
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _scaled_row(sh, i, f0, f1, f2, c0, out):
+    """Row ``i`` of :func:`relight_sh_coefficients`: colour factors ``f0, f1, f2`` (float64)."""
+    out[i, 0, 0] = (f0 * (0.5 + c0 * np.float64(sh[i, 0, 0])) - 0.5) / c0
+    out[i, 0, 1] = (f1 * (0.5 + c0 * np.float64(sh[i, 0, 1])) - 0.5) / c0
+    out[i, 0, 2] = (f2 * (0.5 + c0 * np.float64(sh[i, 0, 2])) - 0.5) / c0
+    for a in range(1, sh.shape[1]):
+        out[i, a, 0] = f0 * np.float64(sh[i, a, 0])
+        out[i, a, 1] = f1 * np.float64(sh[i, a, 1])
+        out[i, a, 2] = f2 * np.float64(sh[i, a, 2])
+
+
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
 def _relight_kernel(sh, scale, gamma, c0, out):
     n, k, _ = sh.shape
     n_chunks = (n + _CHUNK - 1) // _CHUNK
     for ch in prange(n_chunks):
         for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
-            f0 = gamma * np.float64(scale[i, 0])
-            f1 = gamma * np.float64(scale[i, 1])
-            f2 = gamma * np.float64(scale[i, 2])
-            out[i, 0, 0] = (f0 * (0.5 + c0 * np.float64(sh[i, 0, 0])) - 0.5) / c0
-            out[i, 0, 1] = (f1 * (0.5 + c0 * np.float64(sh[i, 0, 1])) - 0.5) / c0
-            out[i, 0, 2] = (f2 * (0.5 + c0 * np.float64(sh[i, 0, 2])) - 0.5) / c0
-            for a in range(1, k):
-                out[i, a, 0] = f0 * np.float64(sh[i, a, 0])
-                out[i, a, 1] = f1 * np.float64(sh[i, a, 1])
-                out[i, a, 2] = f2 * np.float64(sh[i, a, 2])
+            _scaled_row(sh, i, gamma * np.float64(scale[i, 0]), gamma * np.float64(scale[i, 1]),
+                        gamma * np.float64(scale[i, 2]), c0, out)
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _shade_kernel(i0_, i1_, sh, lit, transmittance, sky, f, c0, out):
+    for i in range(i0_, i1_):
+        if lit[i]:
+            k = np.float32((1.0 - f) + f * np.float64(transmittance[i]))
+            s = np.float64(np.float32(k * sky[i]))  # (float32 times float32, rounded to float32)
+            _scaled_row(sh, i, s, s, s, c0, out)
+        else:
+            for a in range(sh.shape[1]):
+                out[i, a, 0] = sh[i, a, 0]
+                out[i, a, 1] = sh[i, a, 1]
+                out[i, a, 2] = sh[i, a, 2]
+
+
+def shade_rows(sh: np.ndarray, lit: np.ndarray, transmittance: np.ndarray, sky: np.ndarray, direct_fraction: float,
+               threads: bool = True) -> np.ndarray:
+    """(N, K, 3) float32 SH: where ``lit`` (N,) bool, row ``i`` of ``sh`` (N, K, 3) shadowed as
+    :func:`relight_sh_coefficients` with the grey factor ``float32(float32(1 - f + f T_i) * sky_i)``
+    (``T`` ``transmittance`` (N,) float32, ``sky`` (N,) float32 the sky's share still seen, ``f``
+    ``direct_fraction``): bit for bit ``relight_sh_coefficients(sh[lit], factor[lit])``; elsewhere
+    ``sh``'s row as it is. One pass, without the gathers and the copy of the masked form.
+    ``threads``: in the kernel threads, or (False) in the calling thread."""
+    sh = np.ascontiguousarray(sh, dtype=np.float32)
+    lit = np.ascontiguousarray(lit, dtype=np.bool_)
+    t = np.ascontiguousarray(transmittance, dtype=np.float32)
+    k = np.ascontiguousarray(sky, dtype=np.float32)
+    n = sh.shape[0]
+    if sh.ndim != 3 or sh.shape[2] != 3 or lit.shape != (n,) or t.shape != (n,) or k.shape != (n,):
+        raise ValueError(f"shade_rows: sh (N, K, 3) and (N,) lit, transmittance, sky; got {sh.shape}, "
+                         f"{lit.shape}, {t.shape}, {k.shape}")
+    if not math.isfinite(direct_fraction):
+        raise ValueError(f"direct fraction must be finite, got {direct_fraction}")
+    out = np.empty_like(sh)
+    sh = sh.view()
+    sh.flags.writeable = False  # one kernel specialisation whether or not the caller's array is read-only
+    if threads:
+        run_chunks(_shade_kernel, n, sh, lit, t, k, float(direct_fraction), SH_C0, out, min_chunk=4096)
+    elif n:
+        _shade_kernel(0, n, sh, lit, t, k, float(direct_fraction), SH_C0, out)
+    return out
 
 
 def relight_sh_coefficients(sh: np.ndarray, scale: np.ndarray, gamma: float = 1.0) -> np.ndarray:

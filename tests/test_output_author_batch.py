@@ -124,3 +124,28 @@ def test_receiver_keeps_the_unaffected_half_values_only_while_the_bits_are_the_s
     assert author.receiver("/Q", 3, t, zeros + np.float32(0.5), -zeros)
     held = np.asarray(stage.GetPrimAtPath("/Q").GetAttribute("radiance:sphericalHarmonicsCoefficientsh").Get(2))
     assert (held == 0).all() and np.signbit(held).all()
+
+
+@pytest.mark.parametrize("k", [1, 9])
+def test_receivers_with_the_callers_half_values_author_the_same(k):
+    """``sh_in_half`` (the main job keeps its static SH as float16 once per shot) changes nothing:
+    the same flags, samples and layer as converting ``sh_in`` at every call."""
+    rng = np.random.default_rng(11 + k)
+    counts = np.array([4, 2, 0, 6, 3])
+    paths = [f"/W/B{i}" for i in range(len(counts))]
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    frames = [1, 2, 4, 5, 6]
+    seq = _frames(rng, counts, k, len(frames))
+    plain, given = Usd.Stage.CreateInMemory(), Usd.Stage.CreateInMemory()
+    a1 = OutputAuthor(plain, frames, (), "half", SH_TOLERANCE)
+    a2 = OutputAuthor(given, frames, (), "half", SH_TOLERANCE)
+    for f, (t, sh_out, sh_in) in zip(frames, seq, strict=True):
+        which = list(range(len(paths))) if f % 2 else [0, 3, 4]  # every prim (the tracks keep views), or some
+        rows = np.concatenate([np.arange(offsets[i], offsets[i + 1]) for i in which])
+        sub = np.concatenate([[0], np.cumsum(counts[which])])
+        p = [paths[i] for i in which]
+        flags1 = a1.receivers(f, p, sub, t[rows], sh_out[rows], sh_in[rows])
+        flags2 = a2.receivers(f, p, sub, t[rows], sh_out[rows], sh_in[rows], sh_in[rows].astype(np.float16))
+        assert flags2.tolist() == flags1.tolist(), f"frame {f}"
+    assert a2.samples_written == a1.samples_written > 0
+    assert _layer_content(given) == _layer_content(plain)

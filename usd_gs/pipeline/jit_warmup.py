@@ -35,6 +35,7 @@ from numba_kernels import dgsm_build, dgsm_sample
 from numba_kernels.capsule import within_capsule
 from numba_kernels.cube_warp import warp_layer
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
+from numba_kernels.sh_output import half_bits_where
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.point_blocks import PointBlocks, block_starts
@@ -42,11 +43,12 @@ from usd_gs.relight.avatar import relight_factors
 from usd_gs.relight.far_field import FarLayers
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.shadows.dgsm import prepare_occluders
-from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
+from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh, shade_sh_rows
 from usd_gs.shadows.shot import Receivers, prim_spheres, receiver_points, shared_transmittance
 from usd_gs.shadows.static_scene import StaticSceneAtlas
 from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.lux import ShotLight
+from usd_gs.usd.output_author import half_of, segments_equal, sh_display_changes
 
 #: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
 SENTINEL = ("numba_kernels.rasterize", "_blend")
@@ -201,6 +203,16 @@ def warm_up(groups=GROUPS) -> None:
         layers.clear(everything.positions[:scene.count], centre, 0.5, 1.0)
         flat = np.zeros((6, 2, 2), np.float32)  # and its layer moved to the probe's centre
         warp_layer(np.zeros((6, 2, 2, 3), np.float32), flat, flat, np.zeros(3), centre, 1.0)
+        # the authoring of the static receivers' SH (its first frame comes after the first relighting)
+        sh = np.ascontiguousarray(scene.sh, np.float32)
+        lit = np.ones(scene.count, bool)
+        t = np.full(scene.count, 0.5, np.float32)
+        sh_out = shade_sh_rows(sh, lit, t, t, 1.0, threads=False)
+        offsets = np.array([0, scene.count], np.int64)
+        sh_display_changes(sh_out, sh, offsets, rows=lit)
+        halves = half_of(sh)
+        half_bits_where(lit, sh_out, halves, threads=False)
+        segments_equal(halves, halves, np.zeros(1, np.int64), np.array([halves.size], np.int64))
         _mark("relight")
     if "shadows" in groups:
         out = np.ones((4, atlas.K), np.float32)

@@ -54,7 +54,7 @@ from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.sun_estimation import up_vector
 from usd_gs.resources import check_memory
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
-from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh
+from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh, shade_sh_rows
 from usd_gs.shadows.shot import (
     Receivers,
     occluder_sphere,
@@ -80,7 +80,7 @@ from usd_gs.usd.gaussian_prim import (
     retyped_message,
 )
 from usd_gs.usd.lux import ShotLight, read_stage_lights
-from usd_gs.usd.output_author import OutputAuthor
+from usd_gs.usd.output_author import OutputAuthor, half_of, within_half
 from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.skel import has_skel_binding
@@ -1138,20 +1138,22 @@ class ShotProcessor:
             cand = np.flatnonzero([touched[k] or not author.is_clean(p) for k, p in enumerate(paths)])
             counts = offsets[cand + 1] - offsets[cand]
             sub = np.concatenate([[0], np.cumsum(counts)])
-            rows = np.repeat(offsets[cand] - sub[:-1], counts) + np.arange(sub[-1])
+            every = len(cand) == len(paths)  # (then the rows are the block's, in order: no gathers)
+            rows = None if every else np.repeat(offsets[cand] - sub[:-1], counts) + np.arange(sub[-1])
             tp = np.ones(offsets[-1], np.float32)
             tp[u] = t_static_u
-            tp = tp[rows]
             ks = np.ones(offsets[-1], np.float32)
             ks[u] = sky_u
-            ks = ks[rows]
-            sh_in = sh_block[rows]
+            if not every:
+                tp, ks = tp[rows], ks[rows]
+            sh_in = sh_block if every else sh_block[rows]
             sh_out = sh_in
             lit = np.repeat(shadowed[cand], counts)
-            if lit.any():
-                sh_out = sh_in.copy()
-                sh_out[lit] = scale_sh(sh_in[lit], attenuation_factor(tp[lit], f) * ks[lit][:, None])
-            done = author.receivers(frame, [paths[k] for k in cand], sub, tp, sh_out, sh_in)
+            if lit.any():  # (in this thread: it runs beside the next frame's kernel-heavy shadow tasks)
+                sh_out = shade_sh_rows(sh_in, lit, tp, ks, f, threads=False)
+            halves = self._static_sh_half(author, sh_block)
+            done = author.receivers(frame, [paths[k] for k in cand], sub, tp, sh_out, sh_in,
+                                    None if halves is None else (halves if every else halves[rows]))
             affected += [paths[k] for k, d in zip(cand, done, strict=True) if d]
         else:
             owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in paths]), u, side="right")
@@ -1186,6 +1188,17 @@ class ShotProcessor:
                 author.receiver(p, frame, np.ones(sets[p].count, np.float32), scale_sh(sh_in, scale), sh_in)
         for p in affected:
             self.affected[p] = self.affected.get(p, 0) + 1
+
+    def _static_sh_half(self, author, sh_block: np.ndarray) -> np.ndarray | None:
+        """The static receivers' SH block as float16 (once per shot: it does not change), for an
+        author that writes half precision and an all-float32 block within the half range; None
+        otherwise (the author then converts, or reports the value that overflows)."""
+        got = getattr(self, "_sh_block_half", None)
+        if got is None or got[0] is not sh_block:
+            ok = author.precision == "half" and sh_block.dtype == np.float32 and within_half(sh_block)
+            got = (sh_block, half_of(sh_block) if ok else None)
+            self._sh_block_half = got
+        return got[1]
 
     def _local_sh(self, path: str, frame: float, g):
         """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at

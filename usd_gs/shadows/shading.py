@@ -62,6 +62,17 @@ def attenuation_factor(transmittance: np.ndarray, direct_fraction: float) -> np.
     return np.repeat(k[:, None], 3, axis=1).astype(np.float32)
 
 
+def shade_sh_rows(sh: np.ndarray, lit: np.ndarray, transmittance: np.ndarray, sky: np.ndarray,
+                  direct_fraction: float, threads: bool = True) -> np.ndarray:
+    """(N, K, 3) float32: the rows of ``sh`` where ``lit`` (N,) bool shadowed by
+    ``attenuation_factor(transmittance, direct_fraction) * sky`` (``sky`` (N,) the share of the sky still
+    seen), the others as they are: ``scale_sh`` of the lit rows, bit for bit, in one pass
+    (``numba_kernels.sh_transfer.shade_rows``; ``threads`` False: in the calling thread)."""
+    from numba_kernels.sh_transfer import shade_rows
+
+    return shade_rows(sh, lit, transmittance, sky, direct_fraction, threads)
+
+
 def scale_sh(sh: np.ndarray, factor: np.ndarray) -> np.ndarray:
     """SH coefficients whose colour is ``factor * c(dir)`` (see module docstring)."""
     from numba_kernels.sh_transfer import relight_sh_coefficients

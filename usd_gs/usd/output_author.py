@@ -45,13 +45,12 @@ PROBE_SH = "usdgs:probe:shCoefficients"
 PROBE_TEXTURE = "usdgs:probe:texture"
 
 
-def _row_display_changes(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) float32 per particle: the bound of :func:`sh_display_change` over its channels."""
-    k = a.shape[1]
-    bands = np.floor(np.sqrt(np.arange(k))).astype(np.float64)
-    ymax = np.sqrt((2.0 * bands + 1.0) / (4.0 * np.pi)).astype(np.float32)
-    d = np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))  # (no copies of float32 inputs)
-    return np.einsum("nkc,k->nc", d, ymax).max(axis=1, initial=0.0)
+def _row_display_changes(a: np.ndarray, b: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """(N,) float32 per particle: the bound of :func:`sh_display_change` over its channels
+    (``numba_kernels.sh_output.row_display_changes``; ``rows``: only those rows, 0 for the others)."""
+    from numba_kernels.sh_output import row_display_changes
+
+    return row_display_changes(a, b, rows, threads=False)
 
 
 def sh_display_change(a: np.ndarray, b: np.ndarray) -> float:
@@ -74,11 +73,12 @@ def sh_display_within(a: np.ndarray, b: np.ndarray, tolerance: float) -> bool:
     return all(sh_display_change(a[i:i + step], b[i:i + step]) < tolerance for i in range(0, len(a), step))
 
 
-def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+def sh_display_changes(a: np.ndarray, b: np.ndarray, offsets: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
     """(P,) float64: :func:`sh_display_change` of each prim's rows ``offsets[i]:offsets[i + 1]`` of
-    ``a``, ``b`` (M, K, 3), in one pass (0 for a prim without rows)."""
+    ``a``, ``b`` (M, K, 3), in one pass (0 for a prim without rows). ``rows`` (M,) bool: the rows
+    that may differ (the others are taken as equal: no work)."""
     offsets = np.asarray(offsets, np.int64)
-    rows = _row_display_changes(a, b)
+    rows = _row_display_changes(a, b, rows)
     counts = np.diff(offsets)
     out = np.zeros(len(counts), np.float64)
     full = counts > 0
@@ -100,7 +100,7 @@ def same_values(a: np.ndarray, b: np.ndarray) -> bool:
 _HALF_MAX = float(np.finfo(np.float16).max)
 
 
-def _within_half(value: np.ndarray) -> bool:
+def within_half(value: np.ndarray) -> bool:
     """True when every element of the (non-empty) ``value`` is within +/- the half maximum
     (False for a NaN, whose check the caller then makes element by element)."""
     return bool(value.max() <= _HALF_MAX and value.min() >= -_HALF_MAX)
@@ -116,6 +116,17 @@ def _segment_all(flags: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> n
     return out
 
 
+def segments_equal(a: np.ndarray, b: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(P,) bool: ``(a_flat[s:s + n] == b_flat[s:s + n]).all()`` for each ``starts``, ``lengths``
+    (consecutive segments covering the arrays; True when empty), float16 arrays in one threaded pass
+    that stops at each segment's first difference (``numba_kernels.sh_output.half_segments_equal``)."""
+    if a.dtype == np.float16 and b.dtype == np.float16 and a.shape == b.shape:
+        from numba_kernels.sh_output import half_segments_equal
+
+        return half_segments_equal(a, b, starts, np.asarray(starts) + np.asarray(lengths), threads=False)
+    return _segment_all((a == b).reshape(-1), starts, lengths)
+
+
 def _changed_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     """(M,) bool: the rows of ``a`` whose bits differ from ``b``'s (both (M, K, 3)); None unless
     both are float32 and ``b`` is finite (a row equal to a NaN row still has a NaN difference)."""
@@ -129,10 +140,20 @@ def _changed_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     return (ua != ub).any(axis=1)
 
 
+def half_of(value: np.ndarray) -> np.ndarray:
+    """``value.astype(np.float16)`` (float32 through ``numba_kernels.sh_output.half_bits``: the same
+    bits, one pass in the calling thread)."""
+    if value.dtype != np.float32:
+        return value.astype(np.float16)
+    from numba_kernels.sh_output import half_bits
+
+    return half_bits(value, threads=False)
+
+
 def _to_half(value: np.ndarray, prim_path: str) -> np.ndarray:
     """``value`` as float16; ``UserError`` naming the prim and element where it overflows."""
-    if not value.size or _within_half(value):  # fast path: two reductions, no temporaries
-        return value.astype(np.float16)
+    if not value.size or within_half(value):  # fast path: two reductions, no temporaries
+        return half_of(value)
     big = np.flatnonzero(np.abs(value).max(axis=-1) > _HALF_MAX)
     if len(big):
         from usd_gs.errors import UserError
@@ -288,14 +309,15 @@ class OutputAuthor:
         return half
 
     def receivers(self, frame: float, paths, offsets, transmittance: np.ndarray, sh_out: np.ndarray,
-                  sh_in: np.ndarray) -> np.ndarray:
+                  sh_in: np.ndarray, sh_in_half: np.ndarray | None = None) -> np.ndarray:
         """:meth:`receiver` for many prims at once, with the same results and time samples: prim
         ``paths[i]`` takes rows ``offsets[i]:offsets[i + 1]`` ((P + 1,) ints from 0) of
         ``transmittance`` (M,) and of ``sh_out``, ``sh_in`` (M, K, 3), one K for all. Returns (P,)
         bool, whether anything was authored on each prim. The tolerance rule, the half conversion
         and the comparison with the held values run once over all rows; the writes go into one
         ``Sdf.ChangeBlock``. A value beyond the half range (or NaN) takes :meth:`receiver`, prim by
-        prim, so that the error names the same prim and element."""
+        prim, so that the error names the same prim and element. ``sh_in_half``: ``sh_in`` as
+        float16 where the caller keeps it (a shot's static SH does not change), else converted here."""
         from pxr import Sdf, Vt
 
         paths = list(paths)
@@ -309,35 +331,30 @@ class OutputAuthor:
         # the rows whose SH differ from the unaffected one, bit for bit (float32 and finite: the
         # other rows change nothing, their display change is 0 and their half values are the same)
         moved = _changed_rows(sh_out, sh_in)
-        if self.sh_tolerance > 0.0:
-            if moved is None:
-                change = sh_display_changes(sh_out, sh_in, offsets)
-            else:  # only for the prims with a changed row
-                some = _segment_all(~moved, offsets[:-1], counts) == 0
-                change = np.zeros(len(paths))
-                if some.any():
-                    sel = np.repeat(some, counts)
-                    change[some] = sh_display_changes(sh_out[sel], sh_in[sel],
-                                                      np.concatenate([[0], np.cumsum(counts[some])]))
-            hold = change < self.sh_tolerance
-            if hold.any():  # within the tolerance of the unaffected SH: written as unaffected
-                rows_held = np.repeat(hold, counts)
-                sh_out = np.where(rows_held[:, None, None], sh_in, sh_out)
-                if moved is not None:
-                    moved = moved & ~rows_held
         half = self.precision == "half"
+        held = None
+        if self.sh_tolerance > 0.0:
+            hold = sh_display_changes(sh_out, sh_in, offsets, rows=moved) < self.sh_tolerance
+            if hold.any():  # within the tolerance of the unaffected SH: written as unaffected
+                held = np.repeat(hold, counts)
+                if moved is not None:
+                    moved = moved & ~held
+        fast_half = half and (not m or (within_half(sh_out) and within_half(sh_in)))
+        if held is not None and not (fast_half and moved is not None):
+            sh_out = np.where(held[:, None, None], sh_in, sh_out)
         shape = (m * k, 3)
         if half:
-            if m and not (_within_half(sh_out) and _within_half(sh_in)):
+            if not fast_half:
                 return np.array([self.receiver(p, frame, transmittance[a:b], sh_out[a:b], sh_in[a:b])
                                  for p, a, b in zip(paths, offsets[:-1], offsets[1:], strict=True)], bool)
-            unaffected = sh_in.reshape(shape).astype(np.float16)
+            unaffected = half_of(sh_in) if sh_in_half is None else np.asarray(sh_in_half).reshape(sh_in.shape)
             if moved is None:
-                value = sh_out.reshape(shape).astype(np.float16)
-            else:  # converted where the SH moved only
-                value = unaffected.copy().reshape(m, k, 3)
-                value[moved] = sh_out[moved].astype(np.float16)
-                value = value.reshape(shape)
+                value = half_of(sh_out).reshape(shape)
+            else:  # converted where the SH moved (and is not held) only
+                from numba_kernels.sh_output import half_bits_where
+
+                value = half_bits_where(moved, sh_out, unaffected, threads=False).reshape(shape)
+            unaffected = unaffected.reshape(shape)
         else:
             value, unaffected = sh_out.astype(np.float32).reshape(shape), sh_in.astype(np.float32).reshape(shape)
         changed = np.zeros(len(paths), bool)
@@ -346,13 +363,15 @@ class OutputAuthor:
                                       np.asarray(transmittance).astype(np.float32), np.ones(m, np.float32), frame,
                                       lambda p: self._attr(p, TRANSMITTANCE, Sdf.ValueTypeNames.FloatArray, True))
         changed |= self._put_many(paths, offsets * k, SH_COEFFS, Vt.Vec3hArray if half else Vt.Vec3fArray, value,
-                                  unaffected, frame, lambda p: self._sh_attr(p, k))
+                                  unaffected, frame, lambda p: self._sh_attr(p, k), owned=True)  # (a new array)
         return changed
 
-    def _put_many(self, paths, rows, name, vt_cls, value, unaffected, frame, make_attr) -> np.ndarray:
+    def _put_many(self, paths, rows, name, vt_cls, value, unaffected, frame, make_attr,
+                  owned: bool = False) -> np.ndarray:
         """:meth:`_put` of attribute ``name`` on every prim of ``paths`` (rows ``rows[i]:rows[i + 1]``
         of ``value``, ``unaffected``), with one comparison over all rows; ``make_attr(path)`` returns
-        the attribute to author. Returns (P,) bool, authored."""
+        the attribute to author. ``owned``: ``value`` is a fresh array no one else holds or changes.
+        Returns (P,) bool, authored."""
         from pxr import Sdf
 
         counts = np.diff(rows)
@@ -368,12 +387,15 @@ class OutputAuthor:
             refs.append(unaffected[rows[i]:rows[i + 1]] if ref is None else ref)
         reference = np.concatenate(refs) if len(refs) > 1 else refs[0]
         starts = rows[:-1] * width
-        equal = _segment_all((value == reference).reshape(-1), starts, counts * width) & same_shape
+        equal = segments_equal(value, reference, starts, counts * width) & same_shape
         todo = np.flatnonzero(~equal)
         if not todo.size:
             return ~equal
-        clean = _segment_all((value == unaffected).reshape(-1), starts, counts * width)
+        clean = segments_equal(value, unaffected, starts, counts * width)
         attrs = [make_attr(paths[i]) for i in todo]  # created before the change block
+        # the tracks keep views of a fresh ``value`` when every prim takes its rows (no other track
+        # then keeps an older array alive), else copies
+        keep_views = owned and todo.size == len(paths)
         prev = self._previous.get(float(frame))
         with Sdf.ChangeBlock():
             for i, attr in zip(todo, attrs, strict=True):
@@ -387,7 +409,7 @@ class OutputAuthor:
                 attr.Set(vt_cls.FromNumpy(v), frame)
                 track.clean = bool(clean[i])
                 track.started = True
-                track.last = v.copy()
+                track.last = v if keep_views else v.copy()
                 track.last_frame = float(frame)
                 self.samples_written += 1
         return ~equal
