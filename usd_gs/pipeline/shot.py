@@ -1195,7 +1195,8 @@ class ShotProcessor:
         otherwise (the author then converts, or reports the value that overflows)."""
         got = getattr(self, "_sh_block_half", None)
         if got is None or got[0] is not sh_block:
-            ok = author.precision == "half" and sh_block.dtype == np.float32 and within_half(sh_block)
+            ok = (author.precision == "half" and sh_block.dtype == np.float32 and sh_block.size > 0
+                  and within_half(sh_block))
             got = (sh_block, half_of(sh_block) if ok else None)
             self._sh_block_half = got
         return got[1]

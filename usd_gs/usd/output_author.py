@@ -118,8 +118,9 @@ def _segment_all(flags: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> n
 
 def segments_equal(a: np.ndarray, b: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """(P,) bool: ``(a_flat[s:s + n] == b_flat[s:s + n]).all()`` for each ``starts``, ``lengths``
-    (consecutive segments covering the arrays; True when empty), float16 arrays in one threaded pass
-    that stops at each segment's first difference (``numba_kernels.sh_output.half_segments_equal``)."""
+    (consecutive segments covering the arrays; True when empty): float16 arrays in one pass in the
+    calling thread that stops at each segment's first difference
+    (``numba_kernels.sh_output.half_segments_equal``), others through numpy."""
     if a.dtype == np.float16 and b.dtype == np.float16 and a.shape == b.shape:
         from numba_kernels.sh_output import half_segments_equal
 
