@@ -44,7 +44,8 @@ def run_case(el, az, ratio, spacing, sky):
     dt = time.perf_counter() - t
     err = se.angle_deg(est.direction, sc.sun)
     print(f"sun el {el:4.0f} az {az:5.0f} ratio {ratio:.1f}: direction error {err:5.2f} deg, sun/sky {est.ratio:5.2f} "
-          f"({100 * (est.ratio / ratio - 1):+5.1f} %), score {est.score:.2f}, confident {est.confident}, {dt:.1f} s")
+          f"({100 * (est.ratio / ratio - 1):+5.1f} %), score {est.score:.2f} (coarse pass {est.coarse_score:.2f}), "
+          f"confident {est.confident}, {dt:.1f} s")
     return err, est.ratio / ratio - 1
 
 
@@ -137,7 +138,8 @@ def main() -> None:
     oc = make_sun_scene(overcast=True, spacing=spacing, sky_samples=sky, seed=2)
     est = se.estimate_sun(oc.gaussians, CENTRE, "Y", ground_hint=0.0)
     thr = se.CaptureConfig().score_threshold
-    print(f"overcast: best score {est.score:.2f} (threshold {thr:.2f}), confident {est.confident}")
+    print(f"overcast: best score {est.score:.2f} (coarse pass {est.coarse_score:.2f}; threshold {thr:.2f}), "
+          f"confident {est.confident}")
     d = avatar_darkening(spacing, sky)
     print(f"summary: max direction error {max(e for e, _ in errs):.2f} deg, max |ratio error| "
           f"{100 * max(abs(r) for _, r in errs):.1f} %, overcast confident {est.confident}, avatar darkening "

@@ -67,6 +67,21 @@ def test_overcast_gives_no_confident_sun(overcast):
     assert not est.confident and est.score < se.CaptureConfig().score_threshold
 
 
+def test_a_capture_without_a_sun_skips_the_fine_search(overcast, sunny):
+    """No coarse direction reaches ``fine_min_score``: one fine build instead of the grids, and what
+    the main job takes of a sunless estimate (no sun, the ground's colour) is the full search's."""
+    quick = se.estimate_sun(overcast.gaussians, CENTRE, "Y", ground_hint=0.0)
+    full = se.estimate_sun(overcast.gaussians, CENTRE, "Y", ground_hint=0.0,
+                           config=se.CaptureConfig(fine_min_score=0.0))
+    # the coarse directions and one fine build, against the grids' hundreds; no dense ratio pass
+    assert full.timings["builds"] - quick.timings["builds"] > 50 and "ratio" not in quick.timings
+    assert not quick.confident and not full.confident
+    assert quick.score < se.CaptureConfig().fine_min_score and full.score < se.CaptureConfig().score_threshold
+    np.testing.assert_array_equal(quick.sky.ground, full.sky.ground)
+    # a sunny capture's coarse best is far above the bar: the full search runs (its direction is checked above)
+    assert "ratio" in se.estimate_sun(sunny.gaussians, CENTRE, "Y", ground_hint=0.0).timings
+
+
 def test_open_and_closed_decisions(sunny, room):
     d_open = se.classify_capture(sunny.gaussians, CENTRE, "Y")
     assert d_open.is_open and d_open.empty_share > 0.9 and not d_open.compact

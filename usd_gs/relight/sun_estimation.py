@@ -26,6 +26,12 @@ prims' transforms first), positions in scene units, distances of the configs in 
    ``fine_steps_deg``) with finer buckets. The sun is confident when the score reaches
    ``score_threshold``, the shadowed and lit sets each hold ``min_set`` receivers and the
    lit/shadow ratio says the sun brings at least ``min_direct_share`` of a lit receiver's light.
+   Where no coarse direction scores ``fine_min_score`` the capture has no sun to refine (an
+   overcast or unshadowed one): the fine grids and the ratio's dense pass are skipped and the
+   estimate, from the best coarse direction, is not confident. On the scenes measured the finer
+   passes raised the best score by at most 0.10, or 1.27 times (docs/benchmarks.md, "Capture
+   formats, skinning, warm-up, outdoor lights"), far from the 0.17, or 3.1 times, needed to cross
+   ``score_threshold`` from below ``fine_min_score``.
    The direction is checked against the shading: an SH irradiance fit (bands 0-1) to the
    scene's luminance on its normals, whose band-1 vector points to the dominant light
    (``shading_direction``, ``shading_angle_deg``: evidence only).
@@ -111,7 +117,8 @@ class CaptureConfig:
     up to ``fine_casters`` (250000, thinned the same way above that), ``fine_cell`` (0.04 m),
     ``fine_steps_deg`` (4, 1.3, 0.45) with ``fine_half`` (2, 1, 1): (2h+1)^2 directions per grid,
     re-centred while the best lies on the grid's edge (at most 3 times); ``fine_seeds`` (2) best
-    separated coarse directions;
+    separated coarse directions; ``fine_min_score`` (0.08, at most ``score_threshold``): no fine
+    pass when no coarse direction scores this much (module docstring);
     ``score_threshold`` (0.25), ``min_direct_share`` (0.25), ``min_set`` (30), ``k_sigma`` (3);
     the lit/shadow ratio reads the sky visibility of up to ``ratio_receivers`` (3000) receivers
     of its two sets over ``ratio_directions`` (192) directions with the coarse casters.
@@ -145,6 +152,7 @@ class CaptureConfig:
     fine_steps_deg: tuple = (4.0, 1.3, 0.45)
     fine_half: tuple = (2, 1, 1)
     fine_seeds: int = 2
+    fine_min_score: float = 0.08
     score_threshold: float = 0.25
     min_direct_share: float = 0.25
     min_set: int = 30
@@ -527,6 +535,7 @@ class SunEstimate:
     darkening: float = 0.0
     sky_visibility: float = 1.0
     lit_luminance: float = 0.5
+    coarse_score: float | None = None  # the coarse pass's best score (the fine passes start there)
 
     @property
     def propagation(self) -> np.ndarray:
@@ -549,9 +558,10 @@ class SunEstimate:
         s = self.direction
         state = "confident" if self.confident else f"LOW CONFIDENCE ({'; '.join(self.reasons)}): not used as a sun"
         chk = "" if self.shading_angle_deg is None else f", shading check {self.shading_angle_deg:.0f} deg off"
+        coarse = "" if self.coarse_score is None else f" (coarse pass {self.coarse_score:.2f})"
         return (f"sun: towards ({s[0]:.3f}, {s[1]:.3f}, {s[2]:.3f}), elevation {self.elevation_deg:.1f} deg, azimuth "
-                f"{self.azimuth_deg:.1f} deg, score {self.score:.2f}, sun/sky {self.ratio:.2f}, its share of the "
-                f"lit ground's light {self.direct_share:.2f} (display darkening {self.darkening:.2f}; "
+                f"{self.azimuth_deg:.1f} deg, score {self.score:.2f}{coarse}, sun/sky {self.ratio:.2f}, its share "
+                f"of the lit ground's light {self.direct_share:.2f} (display darkening {self.darkening:.2f}; "
                 f"{self.n_lit} lit / {self.n_shadow} shadowed receivers){chk}: "
                 f"{state}")
 
@@ -613,6 +623,15 @@ def estimate_sun(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit
     sc = scorer.scores(tc, coarse=True)
     timings["coarse"] = time.perf_counter() - t
 
+    if not float(np.max(sc)) >= min(cfg.fine_min_score, cfg.score_threshold):  # no sun to refine
+        t = time.perf_counter()
+        j = int(np.argmax(sc))
+        best_t = scorer.transmittance(coarse[j:j + 1], cfg.fine_cell)[:, 0]
+        est = _sun_and_sky(coarse[j], float(sc[j]), best_t.astype(np.float64), scorer.V_all, lin, up, up_axis, cfg,
+                           pts)
+        timings["fine"] = time.perf_counter() - t
+        return _finish(est, float(sc[j]), split, scene, up, centre, timings, scorer, t0)
+
     t = time.perf_counter()
     order = np.argsort(-sc)
     seeds = []
@@ -658,13 +677,21 @@ def estimate_sun(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit
         keep[pick] = True
         best_t = np.where(keep, best_t, 0.5)  # only receivers with a dense V enter the sets
     est = _sun_and_sky(best_s, best_score, best_t.astype(np.float64), v_fine, lin, up, up_axis, cfg, pts)
+    timings["ratio"] = time.perf_counter() - t
+    return _finish(est, float(np.max(sc)), split, scene, up, centre, timings, scorer, t0)
+
+
+def _finish(est: SunEstimate, coarse_score: float, split, scene: GaussianSet, up, centre, timings: dict, scorer,
+            t0: float) -> SunEstimate:
+    """``est`` with the coarse pass's best score, the receivers' count and height, the shading check
+    against its direction and the timings (``estimate_sun``'s last step)."""
+    est.coarse_score = float(coarse_score)
     est.n_receivers = int(split.recv.size)
     est.ground_height = split.height
     v = _shading_check(scene, split.casters if split.casters.size else split.recv, up, centre)
     if v is not None:
         est.shading_direction = v
-        est.shading_angle_deg = angle_deg(v, best_s)
-    timings["ratio"] = time.perf_counter() - t
+        est.shading_angle_deg = angle_deg(v, est.direction)
     timings["builds"] = scorer.builds
     timings["total"] = time.perf_counter() - t0
     est.timings = timings
