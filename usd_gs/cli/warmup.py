@@ -20,13 +20,13 @@ import sys
 import time
 
 #: the groups in the order they are started (the longest compile first)
-ORDER = ("relight", "skin", "shadows", "refine", "estimate", "directional", "render", "process")
+ORDER = ("relight", "skin", "shadows", "refine", "author", "estimate", "directional", "render", "process")
 #: groups that call kernels another group compiles: they start once those are finished
 AFTER = {
     "estimate": ("relight",),  # the emitters' visibility renders use the probe rasteriser
-    "directional": ("relight", "shadows", "refine", "skin"),  # whole runs
+    "directional": ("relight", "shadows", "refine", "skin", "author"),  # whole runs
     "render": ("relight", "shadows", "refine", "skin", "estimate", "directional"),
-    "process": ("relight", "shadows", "refine", "skin", "estimate", "directional", "render"),
+    "process": ("relight", "shadows", "refine", "skin", "author", "estimate", "directional", "render"),
 }
 
 

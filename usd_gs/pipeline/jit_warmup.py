@@ -6,12 +6,14 @@ them first fills the cache, and the main process then loads them instead of comp
 :func:`start` launches ``python -m usd_gs.pipeline.jit_warmup GROUP ...`` when the cache is
 cold. The main job compiles, in this order, light estimation, the shadow maps' preparation,
 accumulation and refined sampling, then the relighting (normals, probe render, fit and
-transfer). The warm-up takes the :data:`BACKGROUND` group, the relighting, touches a marker
-file when it is done and exits; the main process compiles the rest itself and, before it first
-relights, waits for the marker (:func:`wait_for`) instead of compiling the same kernels a second
-time. The warm-up calls the same wrapper functions as the main job, so the kernels see the same
-argument types and the cache entries match (``tests/test_jit_warmup.py`` checks it). Compile
-times and the cold-start timeline: docs/benchmarks.md (``benchmarks/bench_cold_start.py``).
+transfer), and authors the first frame's results while the second frame's shadows run. The
+warm-up takes the :data:`BACKGROUND` groups, the relighting and then the authoring, touches a
+marker file as each is done and exits; the main process compiles the rest itself and, before it
+first relights (first authors), waits for that group's marker (:func:`wait_for`) instead of
+compiling the same kernels a second time. The warm-up calls the same wrapper functions as the
+main job, so the kernels see the same argument types and the cache entries match
+(``tests/test_jit_warmup.py`` checks it). Compile times and the cold-start timeline:
+docs/benchmarks.md (``benchmarks/bench_cold_start.py``).
 
 Nothing here changes a result: the warm-up writes only numba cache files, which numba
 replaces atomically, and a wait ends when the marker appears, the warm-up process ends, or
@@ -53,9 +55,9 @@ from usd_gs.usd.output_author import half_of, segments_equal, sh_display_changes
 #: a kernel the warm-up compiles; its cache entry tells whether the cache is cold
 SENTINEL = ("numba_kernels.rasterize", "_blend")
 #: the groups of the main job's background warm-up, in the order :func:`warm_up` compiles them
-GROUPS = ("refine", "relight", "shadows")
+GROUPS = ("refine", "relight", "author", "shadows")
 #: the groups the background process compiles (the main job compiles the others itself)
-BACKGROUND = ("relight",)
+BACKGROUND = ("relight", "author")
 #: seconds the main process waits at most for one group
 WAIT_LIMIT = 120.0
 
@@ -174,7 +176,8 @@ def _fake_atlas(occ_count: int):
 
 def warm_up(groups=GROUPS) -> None:
     """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
-    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer,
+    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer, ``author``
+    the output's SH passes (shadowed rows, float16, display-change bound, held-value comparison),
     ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
     shared atlas, light combination). Marks each group when done (see :func:`start`). The rest of
     what the commands compile is warmed by ``usd_gs.pipeline.machine_warmup`` (``usdgs warmup``)."""
@@ -203,7 +206,8 @@ def warm_up(groups=GROUPS) -> None:
         layers.clear(everything.positions[:scene.count], centre, 0.5, 1.0)
         flat = np.zeros((6, 2, 2), np.float32)  # and its layer moved to the probe's centre
         warp_layer(np.zeros((6, 2, 2, 3), np.float32), flat, flat, np.zeros(3), centre, 1.0)
-        # the authoring of the static receivers' SH (its first frame comes after the first relighting)
+        _mark("relight")
+    if "author" in groups:  # the authoring of the static receivers' SH (after the first frame's relighting)
         sh = np.ascontiguousarray(scene.sh, np.float32)
         lit = np.ones(scene.count, bool)
         t = np.full(scene.count, 0.5, np.float32)
@@ -213,7 +217,7 @@ def warm_up(groups=GROUPS) -> None:
         halves = half_of(sh)
         half_bits_where(lit, sh_out, halves, threads=False)
         segments_equal(halves, halves, np.zeros(1, np.int64), np.array([halves.size], np.int64))
-        _mark("relight")
+        _mark("author")
     if "shadows" in groups:
         out = np.ones((4, atlas.K), np.float32)
         dgsm_build.accumulate_pixels(light.position, occ, dir_dep, atlas.pixels[:4], atlas.width, atlas.K,
