@@ -15,7 +15,7 @@
   taken in float32 as the arrays hold it and summed in float64. One pass, no temporaries.
 
 The kernels are serial ``nogil`` loops that ``thread_chunks.run_chunks`` runs on row ranges in
-threads, or (``threads=False``) the calling thread runs whole (the results do not depend on it).
+threads, or (``threads=False``) whole in the calling thread (the results do not depend on it).
 References: numpy's cast and the numpy form of the bound (``numba_kernels/reference/sh_output.py``).
 """
 
@@ -30,16 +30,6 @@ from .jit_options import threaded
 from .thread_chunks import run_chunks
 
 _MIN_CHUNK = 1 << 16  # elements (or rows) per range: a range costs a thread-pool round trip
-
-
-def _run(kernel, n: int, *args, threads: bool = True, min_chunk: int = 1) -> None:
-    """``kernel`` over ``range(n)``: in the kernel threads (``run_chunks``), or with ``threads`` False
-    in the calling thread (a caller that runs beside kernel-heavy threads, e.g. the output authoring
-    beside the next frame's shadow tasks, would otherwise queue behind their ranges)."""
-    if threads:
-        run_chunks(kernel, n, *args, min_chunk=min_chunk)
-    elif n > 0:
-        kernel(0, n, *args)
 
 
 @njit(cache=True, fastmath=False, inline="always")
@@ -126,7 +116,7 @@ def half_segments_equal(x: np.ndarray, y: np.ndarray, starts: np.ndarray, ends: 
     starts = np.ascontiguousarray(starts, np.int64)
     ends = np.ascontiguousarray(ends, np.int64)
     out = np.empty(starts.shape[0], np.bool_)
-    _run(_half_segments_equal, starts.shape[0], _frozen(x.reshape(-1).view(np.uint16)),
+    run_chunks(_half_segments_equal, starts.shape[0], _frozen(x.reshape(-1).view(np.uint16)),
          _frozen(y.reshape(-1).view(np.uint16)), starts, ends, out, threads=threads)
     return out
 
@@ -151,7 +141,7 @@ def half_bits(x: np.ndarray, threads: bool = True) -> np.ndarray:
     (module docstring)."""
     src = _float32_bits(x)
     dst = np.empty(src.size, np.uint16)
-    _run(_half_bits, src.size, src, dst, threads=threads, min_chunk=_MIN_CHUNK)
+    run_chunks(_half_bits, src.size, src, dst, threads=threads, min_chunk=_MIN_CHUNK)
     return dst.view(np.float16).reshape(np.shape(x))
 
 
@@ -166,7 +156,7 @@ def half_bits_where(rows: np.ndarray, x: np.ndarray, other: np.ndarray, threads:
     n = rows.shape[0]
     width = src.size // n if n else 0
     dst = np.empty(src.size, np.uint16)
-    _run(_half_bits_where, n, rows, src, _frozen(other.reshape(-1).view(np.uint16)), width, dst, threads=threads,
+    run_chunks(_half_bits_where, n, rows, src, _frozen(other.reshape(-1).view(np.uint16)), width, dst, threads=threads,
          min_chunk=max(1, _MIN_CHUNK // max(width, 1)))
     return dst.view(np.float16).reshape(np.shape(x))
 
@@ -190,7 +180,8 @@ def _row_display_changes(i0_, i1_, a, b, ymax, rows, out):
 
 
 def display_bounds(k: int) -> np.ndarray:
-    """(k,) float64 ``max_d |Y_k(d)| = sqrt((2 l + 1) / (4 pi))`` of the first ``k`` SH coefficients."""
+    """(k,) float64 ``max_d |Y_k(d)| = sqrt((2 l + 1) / (4 pi))`` of the first ``k`` SH coefficients
+    (coefficient ``i`` is in band ``l = floor(sqrt(i))``; any ``k``, not only a whole degree's)."""
     bands = np.floor(np.sqrt(np.arange(k)))
     return np.sqrt((2.0 * bands + 1.0) / (4.0 * math.pi))
 
@@ -208,6 +199,6 @@ def row_display_changes(a: np.ndarray, b: np.ndarray, rows: np.ndarray | None = 
     if rows.size and rows.shape != (a.shape[0],):
         raise ValueError(f"row_display_changes: rows must be ({a.shape[0]},), got {rows.shape}")
     out = np.empty(a.shape[0], np.float32)
-    _run(_row_display_changes, a.shape[0], a, b, display_bounds(a.shape[1]), rows, out, threads=threads,
+    run_chunks(_row_display_changes, a.shape[0], a, b, display_bounds(a.shape[1]), rows, out, threads=threads,
          min_chunk=max(1, _MIN_CHUNK // max(a.shape[1] * 3, 1)))
     return out

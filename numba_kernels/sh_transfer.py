@@ -293,10 +293,7 @@ def shade_rows(sh: np.ndarray, lit: np.ndarray, transmittance: np.ndarray, sky: 
     out = np.empty_like(sh)
     sh = sh.view()
     sh.flags.writeable = False  # one kernel specialisation whether or not the caller's array is read-only
-    if threads:
-        run_chunks(_shade_kernel, n, sh, lit, t, k, float(direct_fraction), SH_C0, out, min_chunk=4096)
-    elif n:
-        _shade_kernel(0, n, sh, lit, t, k, float(direct_fraction), SH_C0, out)
+    run_chunks(_shade_kernel, n, sh, lit, t, k, float(direct_fraction), SH_C0, out, min_chunk=4096, threads=threads)
     return out
 
 

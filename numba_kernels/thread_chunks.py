@@ -40,19 +40,22 @@ def thread_count() -> int:
     return max(1, int(numba.get_num_threads()))
 
 
-def run_chunks(kernel, n: int, *args, chunks_per_thread: int = 4, min_chunk: int = 1) -> None:
+def run_chunks(kernel, n: int, *args, chunks_per_thread: int = 4, min_chunk: int = 1, threads: bool = True) -> None:
     """Call ``kernel(lo, hi, *args)`` for contiguous ranges covering ``0..n-1`` (module doc);
-    ranges hold at least ``min_chunk`` items. Exceptions raised in a range are re-raised."""
+    ranges hold at least ``min_chunk`` items. Exceptions raised in a range are re-raised.
+    ``threads`` False: the whole range in the calling thread (for a caller that runs beside
+    kernel-heavy threads, e.g. the output authoring beside the next frame's shadow tasks, whose
+    ranges would otherwise queue behind theirs)."""
     n = int(n)
     if n <= 0:
         return
-    threads = thread_count()
-    parts = max(1, min(threads * chunks_per_thread, n // max(1, min_chunk)))
-    if threads == 1 or parts == 1:
+    count = thread_count() if threads else 1
+    parts = max(1, min(count * chunks_per_thread, n // max(1, min_chunk)))
+    if count == 1 or parts == 1:
         kernel(0, n, *args)
         return
     step = (n + parts - 1) // parts
     bounds = [(lo, min(n, lo + step)) for lo in range(0, n, step)]
-    futures = [_pool(threads).submit(kernel, lo, hi, *args) for lo, hi in bounds]
+    futures = [_pool(count).submit(kernel, lo, hi, *args) for lo, hi in bounds]
     for f in futures:
         f.result()

@@ -1124,13 +1124,18 @@ class ShotProcessor:
                        and all(srecv.ranges[p][0] == offsets[i] for i, p in enumerate(paths)))
             if regular and srecv.gaussians.sh.shape[1] == local[0].shape[1] and all(
                     sh is sets[p].sh for sh, p in zip(local, paths, strict=True)):
-                block = (offsets, srecv.gaussians.sh)  # every prim's SH as stored: the receivers' rows
+                sh_block = srecv.gaussians.sh  # every prim's SH as stored: the receivers' rows
             else:
-                block = (offsets, np.concatenate(local).astype(np.float32, copy=False)) if regular else False
+                sh_block = np.concatenate(local).astype(np.float32, copy=False) if regular else None
+            # and as the float16 the output holds, for a half-precision output of an all-float32 block
+            # within the half range (else the author converts, or names the value that overflows)
+            halve = (sh_block is not None and author.precision == "half" and sh_block.dtype == np.float32
+                     and sh_block.size > 0 and within_half(sh_block))
+            block = (offsets, sh_block, half_of(sh_block) if halve else None) if regular else False
             self._static_sh_block = block
         if block is not False:
             # every static receiver at once: the same values as the prim-by-prim loop below
-            offsets, sh_block = block
+            offsets, sh_block, halves = block
             owner = np.searchsorted(offsets[1:], u, side="right")
             touched = np.zeros(len(paths), bool)
             touched[owner] = True
@@ -1152,7 +1157,6 @@ class ShotProcessor:
             lit = np.repeat(shadowed[cand], counts)
             if lit.any():  # (in this thread: it runs beside the next frame's kernel-heavy shadow tasks)
                 sh_out = shade_sh_rows(sh_in, lit, tp, ks, f, threads=False)
-            halves = self._static_sh_half(author, sh_block)
             done = author.receivers(frame, [paths[k] for k in cand], sub, tp, sh_out, sh_in,
                                     None if halves is None else (halves if every else halves[rows]))
             affected += [paths[k] for k, d in zip(cand, done, strict=True) if d]
@@ -1189,18 +1193,6 @@ class ShotProcessor:
                 author.receiver(p, frame, np.ones(sets[p].count, np.float32), scale_sh(sh_in, scale), sh_in)
         for p in affected:
             self.affected[p] = self.affected.get(p, 0) + 1
-
-    def _static_sh_half(self, author, sh_block: np.ndarray) -> np.ndarray | None:
-        """The static receivers' SH block as float16 (once per shot: it does not change), for an
-        author that writes half precision and an all-float32 block within the half range; None
-        otherwise (the author then converts, or reports the value that overflows)."""
-        got = getattr(self, "_sh_block_half", None)
-        if got is None or got[0] is not sh_block:
-            ok = (author.precision == "half" and sh_block.dtype == np.float32 and sh_block.size > 0
-                  and within_half(sh_block))
-            got = (sh_block, half_of(sh_block) if ok else None)
-            self._sh_block_half = got
-        return got[1]
 
     def _local_sh(self, path: str, frame: float, g):
         """(N, K, 3) SH of prim ``path`` in its own frame (what its SH attribute holds) at

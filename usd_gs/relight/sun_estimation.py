@@ -28,10 +28,9 @@ prims' transforms first), positions in scene units, distances of the configs in 
    lit/shadow ratio says the sun brings at least ``min_direct_share`` of a lit receiver's light.
    Where no coarse direction scores ``fine_min_score`` the capture has no sun to refine (an
    overcast or unshadowed one): the fine grids and the ratio's dense pass are skipped and the
-   estimate, from the best coarse direction, is not confident. On the scenes measured the finer
-   passes raised the best score by at most 0.10, or 1.27 times (docs/benchmarks.md, "Capture
-   formats, skinning, warm-up, outdoor lights"), far from the 0.17, or 3.1 times, needed to cross
-   ``score_threshold`` from below ``fine_min_score``.
+   estimate, from the best coarse direction, is not confident. ``fine_min_score`` lies below
+   ``score_threshold`` by much more than the finer passes raised the best score on any scene
+   measured (docs/benchmarks.md, "Capture formats, skinning, warm-up, outdoor lights").
    The direction is checked against the shading: an SH irradiance fit (bands 0-1) to the
    scene's luminance on its normals, whose band-1 vector points to the dominant light
    (``shading_direction``, ``shading_angle_deg``: evidence only).
