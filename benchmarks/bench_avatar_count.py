@@ -11,8 +11,16 @@ and the probe renders, which run beside them) and the relighting (``_relight_job
 mean over frames 2.. (frame 1 apart: it builds the shot's caches) of shadows + relighting, its
 ratio to N = 1, and the whole job's s/frame.
 
+With ``--exact-count N`` / ``--merge-count N`` (4 by default, 0: skip) N avatars run again with
+every moving receiver Gaussian looking up the other avatars' shadows (``moving_receiver_samples``
+0) / with every Gaussian of the other avatars drawn in each probe (``probe_merge_cell`` 0), and
+their time and the default's relit colour difference from them are printed; ``--rounds R`` adds
+R - 1 more pairs of runs (the default, then that setting), alternating (this host's load moves a
+single run's figures more than such a setting does).
+
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py [--frames 1-6] [--counts 1,2,4,8]
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py --tasks --frames 1-4 --counts 1,4
+        [--config FILE]
 """
 
 from __future__ import annotations
@@ -93,11 +101,11 @@ def run(stage: Path, out: Path, frames: str, config: Path | None = None) -> dict
     return summary
 
 
-def run_tasks_serial(stage: Path, out: Path, frames: str) -> dict:
+def run_tasks_serial(stage: Path, out: Path, frames: str, config: Path | None = None) -> dict:
     """One in-process ``usdgs process`` on one thread with the shadow pass's tasks run one after the
     other: ``{task function name: s/frame}`` over frames 2.. (each task's own time: moving-caster
     DGSMs ``_caster_task``, the static scene's shadows on moving receivers ``_scene_task``, the
-    probe renders and transfers ``probe_transfer``), plus ``FRAME``, the whole frame."""
+    probe renders and transfers ``_probe_task``), plus ``FRAME``, the whole frame."""
     import numba
 
     import usd_gs.pipeline.shot as shot
@@ -134,7 +142,8 @@ def run_tasks_serial(stage: Path, out: Path, frames: str) -> dict:
     numba.set_num_threads(1)
     try:
         with contextlib.redirect_stdout(io.StringIO()):
-            assert main(["process", str(stage), "-o", str(out), "--frames", frames, "-q"]) == 0
+            extra = ["--config", str(config)] if config else []
+            assert main(["process", str(stage), "-o", str(out), "--frames", frames, "-q", *extra]) == 0
     finally:
         shot.run_tasks, shot.ShotProcessor._frame = plain_run, plain_frame
         numba.set_num_threads(threads)
@@ -151,6 +160,13 @@ def main() -> None:
                     help="also run this many avatars with every moving receiver Gaussian looking up the other "
                          "avatars' shadows (moving_receiver_samples 0) and print the relit colour difference "
                          "(0: skip)")
+    ap.add_argument("--merge-count", type=int, default=4,
+                    help="also run this many avatars with every Gaussian of the other avatars drawn in each probe "
+                         "(probe_merge_cell 0) and print its time and the relit colour difference (0: skip)")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="pairs of runs (the default, then the other setting) for --exact-count / --merge-count: "
+                         "the first after the main table, the others alternating")
+    ap.add_argument("--config", type=Path, default=None, help="a usdgs process --config file for every run")
     ap.add_argument("--tasks", action="store_true",
                     help="instead: each shadow-pass task timed on one thread, one after the other (s/frame over "
                          "frames 2..), per avatar count")
@@ -160,12 +176,13 @@ def main() -> None:
     if a.tasks:
         print(f"frames {a.frames}; one thread, tasks one after the other; s/frame over frames 2..")
         for n in counts:
-            t = run_tasks_serial(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.tasks.lit.usdc", a.frames)
+            t = run_tasks_serial(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.tasks.lit.usdc", a.frames,
+                                 a.config)
             print(f"{n} avatar(s): " + ", ".join(f"{k} {v:.3f}" for k, v in sorted(t.items(), key=lambda kv: -kv[1])))
         return
     rows = []
     for n in counts:
-        s = run(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.lit.usdc", a.frames)
+        s = run(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.lit.usdc", a.frames, a.config)
         steady = s["frame_seconds"][1:] or s["frame_seconds"]
         rows.append((n, sum(steady) / len(steady), s["seconds_per_frame"], s["frame_seconds"][0]))
     base = rows[0][1]
@@ -173,20 +190,40 @@ def main() -> None:
     print(f"{'avatars':>7s} {'s/frame':>8s} {'x N=1':>6s} {'x N':>6s} {'frame 1':>8s} {'job s/frame':>12s}")
     for n, steady, job, first in rows:
         print(f"{n:7d} {steady:8.3f} {steady / base:6.2f} {steady / base / n:6.2f} {first:8.2f} {job:12.3f}")
-    if a.exact_count in counts:
-        from bench_far_field import dc_difference
+    for n, config, what in ((a.exact_count, {"moving_receiver_samples": 0},
+                             "every moving receiver Gaussian looking up (moving_receiver_samples 0)"),
+                            (a.merge_count, {"probe_merge_cell": 0},
+                             "every Gaussian of the other avatars drawn in each probe (probe_merge_cell 0)")):
+        if n in counts:
+            against(work, n, a.frames, config, what, base, a.rounds)
 
-        n = a.exact_count
-        cfg = work / "every_gaussian.json"
-        cfg.write_text(json.dumps({"moving_receiver_samples": 0}))
-        s = run(work / f"bikers_{n}.usda", work / f"bikers_{n}.exact.lit.usdc", a.frames, cfg)
-        steady = s["frame_seconds"][1:] or s["frame_seconds"]
-        d = dc_difference(work / f"bikers_{n}.lit.usdc", work / f"bikers_{n}.exact.lit.usdc")
-        print(f"{n} avatars, every moving receiver Gaussian looking up (moving_receiver_samples 0): "
-              f"{sum(steady) / len(steady):.3f} s/frame ({sum(steady) / len(steady) / base:.2f}x N=1); relit DC "
-              f"colour of the default against it ({d.size:,} values): max {255 * d.max():.2f}/255, mean "
-              f"{255 * d.mean():.4f}/255, 99.9th percentile {255 * np.percentile(d, 99.9):.3f}/255, "
-              f"{int((d > 1 / 255).sum())} above 1/255, {int((d > 4 / 255).sum())} above 4/255")
+
+def _steady(s: dict) -> float:
+    steady = s["frame_seconds"][1:] or s["frame_seconds"]
+    return sum(steady) / len(steady)
+
+
+def against(work: Path, n: int, frames: str, config: dict, what: str, base: float, rounds: int = 1) -> None:
+    """Run ``n`` avatars again with ``config`` and print its time and the default's relit colour
+    difference from it; then ``rounds - 1`` more pairs (the default, then ``config``), alternating,
+    each pair's shadows + relighting s/frame."""
+    from bench_far_field import dc_difference
+
+    cfg = work / f"{next(iter(config))}.json"
+    cfg.write_text(json.dumps(config))
+    out = work / f"bikers_{n}.{next(iter(config))}.lit.usdc"
+    s = run(work / f"bikers_{n}.usda", out, frames, cfg)
+    steady = s["frame_seconds"][1:] or s["frame_seconds"]
+    d = dc_difference(work / f"bikers_{n}.lit.usdc", out)
+    print(f"{n} avatars, {what}: {sum(steady) / len(steady):.3f} s/frame ({sum(steady) / len(steady) / base:.2f}x "
+          f"N=1); relit DC colour of the default against it ({d.size:,} values): max {255 * d.max():.2f}/255, mean "
+          f"{255 * d.mean():.4f}/255, 99.9th percentile {255 * np.percentile(d, 99.9):.3f}/255, "
+          f"{int((d > 1 / 255).sum())} above 1/255, {int((d > 4 / 255).sum())} above 4/255")
+    for r in range(2, rounds + 1):
+        mine = _steady(run(work / f"bikers_{n}.usda", work / f"bikers_{n}.round.lit.usdc", frames))
+        theirs = _steady(run(work / f"bikers_{n}.usda", out, frames, cfg))
+        print(f"  round {r}: default {mine:.3f} s/frame, {next(iter(config))} {config[next(iter(config))]} "
+              f"{theirs:.3f} ({mine / theirs:.3f}x)")
 
 
 if __name__ == "__main__":

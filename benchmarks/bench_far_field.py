@@ -3,9 +3,10 @@ everything, speed and error side by side in one run (not a test).
 
 Shots: the default demo, and the demo plus a bricked block of 9x the room's Gaussians 40 m away
 (``bench_process.make_large_shot``). Each runs ``usdgs process`` in this process for ``--frames``,
-with the relit prims' probe renders and transfers (``usd_gs.relight.avatar.probe_transfer``) timed
-per call; the large shot twice, with ``probe_far_radius`` 0 (every probe draws everything: the
-reference) and with the default far field. Printed per run: s/frame of the whole job, probe
+with the relit prims' probe renders and transfers (``ShotProcessor._probe_task``: the other moving
+prims merged where far enough, ``usd_gs.relight.avatar.probe_transfer``) timed per call; the large
+shot twice, with ``probe_far_radius`` 0 (every probe draws everything: the reference) and with the
+default far field. Printed per run: s/frame of the whole job, probe
 seconds per frame after frame 1 (frame 1 apart), far layers rendered; and the relit prims'
 displayed DC colour against the reference run (max / mean / 99.9th percentile of |difference|,
 all frames and prims). The demo has nothing beyond the radius: its output is the same with and
@@ -36,9 +37,9 @@ def run(stage: Path, out: Path, frames: str, config: dict | None) -> dict:
     from usd_gs.cli import main
 
     calls, fields = [], []
-    plain, init = shot.probe_transfer, far_field.FarField.__init__
+    plain, init = shot.ShotProcessor._probe_task, far_field.FarField.__init__
 
-    def timed(*a, **k):
+    def timed(*a, **k):  # (the probe task: the other prims' merges it makes, the render, the transfer)
         t = time.perf_counter()
         try:
             return plain(*a, **k)
@@ -54,7 +55,7 @@ def run(stage: Path, out: Path, frames: str, config: dict | None) -> dict:
         cfg = out.with_suffix(".config.json")
         cfg.write_text(json.dumps(config))
         args += ["--config", str(cfg)]
-    shot.probe_transfer, far_field.FarField.__init__ = timed, tracked
+    shot.ShotProcessor._probe_task, far_field.FarField.__init__ = timed, tracked
     try:
         import contextlib
         import io
@@ -64,7 +65,7 @@ def run(stage: Path, out: Path, frames: str, config: dict | None) -> dict:
             assert main(args) == 0
         summary = json.loads(buf.getvalue())
     finally:
-        shot.probe_transfer, far_field.FarField.__init__ = plain, init
+        shot.ShotProcessor._probe_task, far_field.FarField.__init__ = plain, init
     n = summary["frames"]["count"]
     per = len(calls) // n if n else 0
     summary["probe_steady"] = sum(calls[per:]) / max(1, n - 1)

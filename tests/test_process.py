@@ -335,7 +335,7 @@ def test_a_shot_without_any_light_keeps_the_relit_prims_mean_brightness(tmp_path
 
 def test_shot_buffer_shares_the_static_receivers_arrays(quick_demo, tmp_path, monkeypatch):
     """The probe renders' shot buffer is the static receivers' own arrays with the moving prims'
-    rows after them (one copy of the static scene, not two), and the output is the one the plain
+    rows (and their merged rows) after them (one copy of the static scene, not two), and the output is the one the plain
     concatenation gives (the same run with the sharing turned off: every value the same)."""
     from farm_compare import stage_differences
 
@@ -346,16 +346,19 @@ def test_shot_buffer_shares_the_static_receivers_arrays(quick_demo, tmp_path, mo
 
     def spy(self, dyn):
         buf, spans = real(self, dyn)
-        seen.append((buf, self._static_recv.gaussians, len(self.static), spans))
+        seen.append((buf, self._static_recv.gaussians, len(self.static), spans, self._buffer[3]))
         return buf, spans
 
     monkeypatch.setattr(pipeline.ShotProcessor, "_shot_buffer", spy)
     shared, plain = tmp_path / "shared.usdc", tmp_path / "plain.usdc"
     argv = ["--frames", "1-2", "-q", *EXACT]
     assert main(["process", str(quick_demo), "-o", str(shared), *argv]) == 0
-    buf, recv, n_static, spans = seen[-1]
+    buf, recv, n_static, spans, slots = seen[-1]
     assert np.shares_memory(buf.positions, recv.positions) and np.shares_memory(buf.sh, recv.sh)
-    assert buf.count > recv.count and max(spans[p][1] for p in spans) == buf.count
+    # then the rows of the moving prims merged for the probes (usd_gs.relight.probe_merge)
+    end = max(spans[p][1] for p in spans)
+    assert slots and min(a for a, _ in slots.values()) == end
+    assert buf.count > recv.count and end + sum(n for _, n in slots.values()) == buf.count
     first = seen[0][0]
     assert first is buf  # frame 2 wrote its moving prims into the same arrays
     monkeypatch.setattr(pipeline.ShotProcessor, "_static_part", lambda self: None)

@@ -44,6 +44,7 @@ from usd_gs.point_blocks import PointBlocks, block_starts
 from usd_gs.relight.avatar import relight_factors
 from usd_gs.relight.far_field import FarLayers
 from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.relight.probe_merge import MergedPrim
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh, shade_sh_rows
 from usd_gs.shadows.shot import Receivers, prim_spheres, receiver_points, shared_transmittance
@@ -176,7 +177,8 @@ def _fake_atlas(occ_count: int):
 
 def warm_up(groups=GROUPS) -> None:
     """Call the main job's kernels on tiny inputs, group by group (module doc): ``refine`` the
-    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer, ``author``
+    shadow maps' refined sampling, ``relight`` normals, probe render, fit and SH transfer (and the
+    merge of other moving prims for the probes), ``author``
     the output's SH passes (shadowed rows, float16, display-change bound, held-value comparison),
     ``shadows`` the rest of the shadow path (accumulation, the static scene's atlas, a caster's
     shared atlas, light combination). Marks each group when done (see :func:`start`). The rest of
@@ -201,6 +203,7 @@ def warm_up(groups=GROUPS) -> None:
                                        ProbeBlend.build(avatar.positions, opts.probe_points), opts)
         scale_sh(avatar.sh, opts.relight_gamma * scale)
         probe.to_latlong(*opts.probe_texture)
+        MergedPrim.of(avatar, opts.probe_merge_cell)  # a moving prim merged for the other prims' probes
         # the far field's ball tests over the static part (FarLayers.clear, block by block)
         layers = FarLayers(blocks=PointBlocks(block_starts([(0, scene.count)])))
         layers.clear(everything.positions[:scene.count], centre, 0.5, 1.0)

@@ -44,6 +44,9 @@ class ProcessOptions:
     # cell of a grid of this fraction of the radius
     probe_far_radius: float = 15.0
     probe_far_tolerance: float = 0.05
+    # usd_gs.relight.probe_merge: moving prims drawn in the other prims' probes merged per cell of
+    # this many metres where a cell is at most one probe texel across (0: every Gaussian drawn)
+    probe_merge_cell: float = 0.03
     probe_texture: tuple[int, int] = (32, 64)
     relight_q: float = 1.0
     relight_gamma: float = 1.0
@@ -85,6 +88,8 @@ class ProcessOptions:
             raise UserError(f"probe supersampling must be 1..4, got {self.probe_supersample}")
         if not self.probe_far_radius >= 0.0:
             raise UserError(f"probe_far_radius must be >= 0 metres (0: off), got {self.probe_far_radius}")
+        if not 0.0 <= self.probe_merge_cell <= 1.0:
+            raise UserError(f"probe_merge_cell must be in [0, 1] metres (0: off), got {self.probe_merge_cell}")
         if not 0.0 < self.probe_far_tolerance <= 0.5:
             raise UserError(f"probe_far_tolerance must be in (0, 0.5], got {self.probe_far_tolerance}")
         if self.lights not in ("auto", "stage", "indoor", "outdoor"):

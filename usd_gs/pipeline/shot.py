@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import threading
 import time
 from dataclasses import dataclass, replace
 from functools import partial
@@ -51,6 +52,7 @@ from usd_gs.relight.direct import self_shadow_samples
 from usd_gs.relight.far_field import KEEP, FarField, FarLayers
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe import render_probe_faces
+from usd_gs.relight.probe_merge import MergedPrim, merge_capacity, merged_distance
 from usd_gs.relight.sun_estimation import up_vector
 from usd_gs.resources import check_memory
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
@@ -184,6 +186,12 @@ def _local_normals_of(g) -> np.ndarray:
     return normals_to_local(g.orientations, gaussian_normals(g.positions, g.orientations, g.scales, g.opacities))
 
 
+def _empty_rows(n: int) -> GaussianSet:
+    """``n`` zero rows (degree 0) to leave room in a concatenated set."""
+    return GaussianSet(np.zeros((n, 3), np.float32), np.zeros((n, 4), np.float32), np.zeros((n, 3), np.float32),
+                       np.zeros(n, np.float32), np.zeros((n, 1, 3), np.float32))
+
+
 def _start_order(n: int, costs=None, sizes=None) -> list[int]:
     """The order :func:`run_tasks` submits ``n`` tasks in: those without a cost first, by ``sizes``
     (largest first; ties and no sizes: as given), then the others by cost, longest first."""
@@ -295,6 +303,10 @@ class ShotProcessor:
         self._local_normals: dict = {}
         self._normals_ahead: dict = {}  # path -> (the set, its local normals): _estimate_normals_ahead
         self._probe_blends: dict = {}
+        # this frame's moving prims merged for the other prims' probes (_merge_setup, _merged_prim)
+        self._merge_due: dict = {}
+        self._merge_locks: dict = {}
+        self._merged: dict = {}
         self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._task_seconds: dict = {}  # the last shadow pass's seconds per task key (its task order)
@@ -485,11 +497,8 @@ class ShotProcessor:
         degree = max(g.sh_degree for g in static)
         if any(self.degrees.get(p, degree + 1) > degree for p in moving):
             return None
-        rows = sum(self.counts[p] for p in moving)
-        room = GaussianSet(np.zeros((rows, 3), np.float32), np.zeros((rows, 4), np.float32),
-                           np.zeros((rows, 3), np.float32), np.zeros(rows, np.float32),
-                           np.zeros((rows, 1, 3), np.float32))
-        whole = GaussianSet.concatenate(static + [room], label="shot")
+        rows = sum(self.counts[p] for p in moving) + self._merge_rows([self.counts[p] for p in moving])
+        whole = GaussianSet.concatenate(static + [_empty_rows(rows)], label="shot")
         n = whole.count - rows
         part = GaussianSet(whole.positions[:n], whole.orientations[:n], whole.scales[:n], whole.opacities[:n],
                            whole.sh[:n], label="receivers")
@@ -514,7 +523,7 @@ class ShotProcessor:
         # the probe renders and transfers need no shadow map: they run beside the shadow tasks
         # the previous frame's authoring runs on this thread while this frame's shadow tasks run
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
-                                               [partial(probe_transfer, **job) for _, job in jobs],
+                                               [partial(self._probe_task, path, job) for path, job in jobs],
                                                meanwhile=self.flush_writes, extra_keys=[p for p, _ in jobs])
         t = time.perf_counter()
         relit = self._relight_pass(jobs, transfers, frame, author, probe_dir, lights, shadows)
@@ -937,11 +946,72 @@ class ShotProcessor:
         relit = self._relit_paths
         if relit:
             everything, spans = self._shot_buffer(dyn)
+            self._merge_setup(dyn)
             self._estimate_normals_ahead({p: sets[p] for p in relit}, frame)
         for path in relit:
             jobs.append((path, self._relight_inputs(path, sets[path], everything, spans[path], frame, lights, spans)))
         self._normals_ahead = {}
         return jobs
+
+    def _merge_setup(self, dyn: dict) -> None:
+        """This frame's moving prims that another relit prim's probe draws (``dyn``: path -> set), to be
+        merged per cell of ``probe_merge_cell`` metres (``usd_gs.relight.probe_merge``) by the first
+        probe task that draws them (:meth:`_merged_prim`): the merges run in the shadow pass's
+        threads, beside its other tasks, not before them."""
+        slots = self._buffer[3]
+        relit = set(self._relit_paths)
+        self._merge_due = {p: g for p, g in dyn.items() if p in slots and g.count and relit - {p}}
+        self._merge_locks = {p: threading.Lock() for p in self._merge_due}
+        self._merged = {}
+
+    def _merged_prim(self, path: str) -> MergedPrim | None:
+        """Moving prim ``path`` merged at this frame, in its rows of the shot buffer (computed once,
+        by the first caller; thread-safe), or None where it merges into more clusters than its rows
+        hold (it is then drawn as it is)."""
+        with self._merge_locks[path]:
+            if path not in self._merged:
+                buf, (a, room) = self._buffer[1], self._buffer[3][path]
+                m = MergedPrim.of(self._merge_due[path], self.opts.probe_merge_cell / self.mpu)
+                if m.count <= room:
+                    b, k = a + m.count, buf.sh.shape[1]
+                    buf.positions[a:b] = m.positions
+                    buf.orientations[a:b] = m.orientations
+                    buf.scales[a:b] = m.scales
+                    buf.opacities[a:b] = m.opacities
+                    buf.sh[a:b, m.sh.shape[1]:] = 0.0
+                    buf.sh[a:b, : m.sh.shape[1]] = m.sh[:, :k]
+                self._merged[path] = m if m.count <= room else None
+            return self._merged[path]
+
+    def _merged_mask(self, mask: np.ndarray, path: str, centre, spans: dict) -> None:
+        """Prim ``path``'s probe at ``centre`` draws every other moving prim merged where a cluster
+        lies at least ``merged_distance`` away, its Gaussians as they are elsewhere (``mask`` updated
+        in place; the merged rows of the rest stay unselected)."""
+        slots = self._buffer[3]
+        if not slots:
+            return
+        mask[min(a for a, _ in slots.values()):] = False
+        far_at = merged_distance(self.opts.probe_merge_cell / self.mpu, self.opts.probe_size,
+                                 self.opts.probe_supersample)
+        for q in self._merge_due:
+            m = self._merged_prim(q) if q != path else None
+            if m is None:
+                continue
+            far = m.far_clusters(centre, far_at)
+            if far.any():
+                a, b = spans[q]
+                if far.all():
+                    mask[a:b] = False
+                else:
+                    mask[a:b] &= ~far[m.labels]
+                mask[slots[q][0]:slots[q][0] + m.count] = far
+
+    def _probe_task(self, path: str, job: dict):
+        """Prim ``path``'s probe render and transfer (``probe_transfer`` of its :meth:`_relight_jobs`
+        entry ``job``), drawing the other moving prims merged where they are far enough
+        (:meth:`_merged_mask`); a task of the shadow pass."""
+        self._merged_mask(job["mask"], path, job["centre"], self._buffer[2])
+        return probe_transfer(**job)
 
     def _estimate_normals_ahead(self, prims: dict, frame: float) -> None:
         """The relit prims' normals that :meth:`_prim_local_normals` is about to estimate from this
@@ -1224,26 +1294,39 @@ class ShotProcessor:
             self._local_sh_cache[path] = sh
         return sh
 
+    def _merge_rows(self, counts) -> int:
+        """Rows the shot buffer keeps after the prims' own for moving prims of ``counts`` Gaussians
+        merged (:meth:`_merged_prim`; 0 when ``probe_merge_cell`` is 0)."""
+        return sum(merge_capacity(n) for n in counts) if self.opts.probe_merge_cell > 0.0 else 0
+
     def _shot_buffer(self, dyn: dict):
         """Every Gaussian of the frame in one set for probe renders: the static part is copied
-        once per shot, each frame only overwrites the dynamic prims' slots."""
+        once per shot, each frame only overwrites the dynamic prims' slots. After every prim's
+        rows, each moving prim has ``merge_capacity`` rows for its merged Gaussians
+        (:meth:`_merged_prim`), which no probe draws unless its mask selects them."""
         counts = tuple((p, g.count, g.sh_degree) for p, g in dyn.items())
         if self._buffer is None or self._buffer[0] != counts:
             order = list(self.static) + list(dyn)
             sets = {**self.static, **dyn}
             offsets = np.cumsum([0] + [sets[p].count for p in order])
             spans = {p: (int(offsets[i]), int(offsets[i + 1])) for i, p in enumerate(order)}
+            slots, at = {}, int(offsets[-1])
+            for p, g in dyn.items():
+                if self._merge_rows([g.count]):
+                    slots[p] = (at, self._merge_rows([g.count]))
+                    at += slots[p][1]
             shared = self._static_shared
-            if (shared is not None and shared[1].count == offsets[-1] and shared[0].count == offsets[len(self.static)]
+            if (shared is not None and shared[1].count == at and shared[0].count == offsets[len(self.static)]
                     and all(g.sh.shape[1] <= shared[1].sh.shape[1] for g in dyn.values())):
                 # the static receivers' arrays, their room filled with the moving prims below: the
                 # values of the plain concatenation (same SH width, no raw fields), without its copy
-                self._buffer = (counts, shared[1], spans)
+                self._buffer = (counts, shared[1], spans, slots)
             else:
-                buf = GaussianSet.concatenate([sets[p] for p in order], label="shot")
-                self._buffer = (counts, buf, spans)
+                room = [_empty_rows(at - int(offsets[-1]))] if at > offsets[-1] else []
+                buf = GaussianSet.concatenate([sets[p] for p in order] + room, label="shot")
+                self._buffer = (counts, buf, spans, slots)
                 return buf, spans
-        _, buf, spans = self._buffer
+        _, buf, spans, _ = self._buffer
         k = buf.sh.shape[1]
         for p, g in dyn.items():
             a, b = spans[p]
