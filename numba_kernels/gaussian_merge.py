@@ -37,8 +37,9 @@ from numba import njit
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
-#: the cell grid is counted densely (one int64 per cell) up to this many cells, else sorted
-DENSE_CELLS = 1 << 22
+#: the cell grid is counted densely (one int64 per cell) up to this many cells or 8 per Gaussian,
+#: else the cells are sorted (a sparse grid: a large prim, or a few stray Gaussians far away)
+DENSE_CELLS = 1 << 16
 _TINY = 1e-30
 
 
@@ -265,7 +266,7 @@ def merge_cells(positions, quaternions, scales, opacities, sh, cell: float):
     order = np.empty(n, np.int64)
     labels = np.empty(n, np.int64)
     ncells = int(dims[0]) * int(dims[1]) * int(dims[2])
-    if ncells <= max(DENSE_CELLS, 4 * n):
+    if ncells <= max(DENSE_CELLS, 8 * n):
         starts = _counting_groups(cells, ncells, order, labels)
     else:  # a sparse grid (a large, thin prim): sort instead of counting every cell
         order = np.argsort(cells, kind="stable")

@@ -113,10 +113,15 @@ def test_jacobi_eigen_decomposition_of_hard_matrices(a):
 
 
 def test_sorted_grouping_of_a_sparse_grid_matches_the_counted_one(monkeypatch):
-    g = _set(3000, 1, 6, 2.0)
+    g = _set(2000, 1, 6, 0.15)  # a 0.3 m cube of 1 cm cells: 27,000 cells, under DENSE_CELLS
+    counted = []
+    plain = gm._counting_groups
+    monkeypatch.setattr(gm, "_counting_groups", lambda *a: counted.append(1) or plain(*a))
     dense = gm.merge_cells(g.positions, g.orientations, g.scales, g.opacities, g.sh, 0.01)
-    monkeypatch.setattr(gm, "DENSE_CELLS", 0)  # and 4 N cells < the grid's: the sort
+    assert counted == [1]
+    monkeypatch.setattr(gm, "DENSE_CELLS", 0)  # and 27,000 > 8 N cells: the sort
     sparse = gm.merge_cells(g.positions, g.orientations, g.scales, g.opacities, g.sh, 0.01)
+    assert counted == [1] and len(np.unique(dense[0])) > 1000
     for a, b in zip(dense, sparse, strict=True):
         assert np.array_equal(a, b)
 
