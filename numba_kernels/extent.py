@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .jit_options import threaded
+from .jit_options import read_only, threaded
 from .thread_chunks import run_chunks
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -78,12 +78,6 @@ def _block_extents(b0, b1, positions, orientations, scales, starts, n_sigma, big
         ok[b] = _extent_rows(positions, orientations, scales, starts[b], starts[b + 1], n_sigma, big, out[b])
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    v = a.view()
-    v.flags.writeable = False  # one specialisation whether or not the caller's array is read-only
-    return v
-
-
 def gaussian_extent(positions: np.ndarray, orientations: np.ndarray, scales: np.ndarray,
                     n_sigma: float) -> np.ndarray | None:
     """(2, 3) float64 (min, max) corners of the box around every Gaussian's ``n_sigma`` ellipsoid,
@@ -94,7 +88,7 @@ def gaussian_extent(positions: np.ndarray, orientations: np.ndarray, scales: np.
     Per axis i the half-width is ``n_sigma * sqrt(sum_j R_ij^2 s_j^2)``, float64.
     """
     out = np.empty((2, 3), np.float64)
-    ok = _extent_kernel(_readonly(positions), _readonly(orientations), _readonly(scales), float(n_sigma),
+    ok = _extent_kernel(read_only(positions), read_only(orientations), read_only(scales), float(n_sigma),
                         _FLOAT32_MAX, out)
     return out if ok else None
 
@@ -109,7 +103,7 @@ def block_extents(positions: np.ndarray, orientations: np.ndarray, scales: np.nd
     nb = max(st.size - 1, 0)
     out = np.empty((nb, 2, 3), np.float64)
     ok = np.zeros(nb, np.bool_)
-    run_chunks(_block_extents, nb, _readonly(positions), _readonly(orientations), _readonly(scales), st,
+    run_chunks(_block_extents, nb, read_only(positions), read_only(orientations), read_only(scales), st,
                float(n_sigma), _FLOAT32_MAX, out, ok)
     ok &= np.diff(st) > 0
     return out, ok

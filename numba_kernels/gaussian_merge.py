@@ -34,6 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .jit_options import read_only
 from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
@@ -237,23 +238,19 @@ def _merge_clusters(c0, c1, order, starts, pos, quat, scales, opac, sh, out_pos,
                 out_sh[c, j, ch] = acc_sh[j, ch] / wsum
 
 
-def _readonly(a, dtype) -> np.ndarray:
-    """A read-only C-contiguous view (or copy) of ``a``: one kernel specialisation whether or not the
-    caller's array is writeable (numba compiles a read-only array as a type of its own)."""
-    v = np.ascontiguousarray(a, dtype).view()
-    v.flags.writeable = False
-    return v
+def _float32(a) -> np.ndarray:
+    return read_only(np.ascontiguousarray(a, np.float32))
 
 
 def merge_cells(positions, quaternions, scales, opacities, sh, cell: float):
     """The set's Gaussians merged per cell of size ``cell`` (module docstring):
     ``(labels (N,) int64, positions (M, 3), quaternions (M, 4), scales (M, 3), opacities (M,),
     sh (M, K, 3))``, float32 arrays, clusters in cell order. ``cell`` > 0."""
-    pos = _readonly(positions, np.float32)
+    pos = _float32(positions)
     n = pos.shape[0]
     if not cell > 0.0 or not math.isfinite(cell):
         raise ValueError(f"cell must be a finite size > 0, got {cell}")
-    sh = _readonly(sh, np.float32)
+    sh = _float32(sh)
     k = sh.shape[1]
     if n == 0:
         return (np.zeros(0, np.int64), np.zeros((0, 3), np.float32), np.zeros((0, 4), np.float32),
@@ -276,6 +273,6 @@ def merge_cells(positions, quaternions, scales, opacities, sh, cell: float):
     m = len(starts) - 1
     out = (np.empty((m, 3), np.float32), np.empty((m, 4), np.float32), np.empty((m, 3), np.float32),
            np.empty(m, np.float32), np.empty((m, k, 3), np.float32))
-    run_chunks(_merge_clusters, m, order, starts, pos, _readonly(quaternions, np.float32),
-               _readonly(scales, np.float32), _readonly(opacities, np.float32), sh, *out, min_chunk=256)
+    run_chunks(_merge_clusters, m, order, starts, pos, _float32(quaternions), _float32(scales), _float32(opacities),
+               sh, *out, min_chunk=256)
     return (labels, *out)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
 from numba.core.errors import NumbaPerformanceWarning
 
 #: Why some kernels marked ``# serial`` have no ``prange``: a parallel kernel costs about twice the
@@ -43,6 +44,15 @@ def threaded() -> dict:
     loop's (its body is typed again as a gufunc; docs/design.md, "Compile time"). numba warns
     that nothing could be parallelised; that warning is filtered for these kernels (below)."""
     return {"nogil": True, "parallel": prange_only()}
+
+
+def read_only(x: np.ndarray) -> np.ndarray:
+    """A read-only view of ``x`` for a kernel call: the kernel sees one array type whether or not the
+    caller's array is writeable (numba compiles a read-only array as a type of its own, a second
+    specialisation to compile and cache)."""
+    v = x.view()
+    v.flags.writeable = False
+    return v
 
 
 warnings.filterwarnings("ignore", message=r"(?s).*The keyword argument 'parallel=True' was specified but no "

@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .jit_options import threaded
+from .jit_options import read_only, threaded
 from .thread_chunks import run_chunks
 
 _MIN_CHUNK = 1 << 16  # elements (or rows) per range: a range costs a thread-pool round trip
@@ -116,24 +116,16 @@ def half_segments_equal(x: np.ndarray, y: np.ndarray, starts: np.ndarray, ends: 
     starts = np.ascontiguousarray(starts, np.int64)
     ends = np.ascontiguousarray(ends, np.int64)
     out = np.empty(starts.shape[0], np.bool_)
-    run_chunks(_half_segments_equal, starts.shape[0], _frozen(x.reshape(-1).view(np.uint16)),
-         _frozen(y.reshape(-1).view(np.uint16)), starts, ends, out, threads=threads)
+    run_chunks(_half_segments_equal, starts.shape[0], read_only(x.reshape(-1).view(np.uint16)),
+               read_only(y.reshape(-1).view(np.uint16)), starts, ends, out, threads=threads)
     return out
-
-
-def _frozen(x: np.ndarray) -> np.ndarray:
-    """A read-only view of ``x``: the kernels see one array type whether or not the caller's
-    array is writeable (numba compiles a read-only array as a type of its own)."""
-    v = x.view()
-    v.flags.writeable = False
-    return v
 
 
 def _float32_bits(x: np.ndarray) -> np.ndarray:
     x = np.ascontiguousarray(x)
     if x.dtype != np.float32:
         raise TypeError(f"half conversion: expected float32, got {x.dtype}")
-    return _frozen(x.reshape(-1).view(np.uint32))
+    return read_only(x.reshape(-1).view(np.uint32))
 
 
 def half_bits(x: np.ndarray, threads: bool = True) -> np.ndarray:
@@ -156,8 +148,8 @@ def half_bits_where(rows: np.ndarray, x: np.ndarray, other: np.ndarray, threads:
     n = rows.shape[0]
     width = src.size // n if n else 0
     dst = np.empty(src.size, np.uint16)
-    run_chunks(_half_bits_where, n, rows, src, _frozen(other.reshape(-1).view(np.uint16)), width, dst, threads=threads,
-         min_chunk=max(1, _MIN_CHUNK // max(width, 1)))
+    run_chunks(_half_bits_where, n, rows, src, read_only(other.reshape(-1).view(np.uint16)), width, dst,
+               threads=threads, min_chunk=max(1, _MIN_CHUNK // max(width, 1)))
     return dst.view(np.float16).reshape(np.shape(x))
 
 
@@ -191,8 +183,8 @@ def row_display_changes(a: np.ndarray, b: np.ndarray, rows: np.ndarray | None = 
     """(N,) float32: the display-change bound of each row of ``a``, ``b`` ((N, K, 3), converted to
     float32 when they are not; module docstring); ``rows`` (N,) bool: only those rows, 0 for the
     others (rows known to be equal)."""
-    a = _frozen(np.ascontiguousarray(a, np.float32))
-    b = _frozen(np.ascontiguousarray(b, np.float32))
+    a = read_only(np.ascontiguousarray(a, np.float32))
+    b = read_only(np.ascontiguousarray(b, np.float32))
     if a.shape != b.shape or a.ndim != 3 or a.shape[2] != 3:
         raise ValueError(f"row_display_changes: two (N, K, 3) arrays, got {a.shape} and {b.shape}")
     rows = np.zeros(0, np.bool_) if rows is None else np.ascontiguousarray(rows, np.bool_)
@@ -200,5 +192,5 @@ def row_display_changes(a: np.ndarray, b: np.ndarray, rows: np.ndarray | None = 
         raise ValueError(f"row_display_changes: rows must be ({a.shape[0]},), got {rows.shape}")
     out = np.empty(a.shape[0], np.float32)
     run_chunks(_row_display_changes, a.shape[0], a, b, display_bounds(a.shape[1]), rows, out, threads=threads,
-         min_chunk=max(1, _MIN_CHUNK // max(a.shape[1] * 3, 1)))
+               min_chunk=max(1, _MIN_CHUNK // max(a.shape[1] * 3, 1)))
     return out

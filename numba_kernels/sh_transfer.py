@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .jit_options import prange_only, threaded
+from .jit_options import prange_only, read_only, threaded
 from .sh_real import NORM, SH_C0, band_of_index, cosine_lobe_band_factors, degree_from_num_coeffs, sh_eval_batch
 from .thread_chunks import run_chunks
 
@@ -291,9 +291,8 @@ def shade_rows(sh: np.ndarray, lit: np.ndarray, transmittance: np.ndarray, sky: 
     if not math.isfinite(direct_fraction):
         raise ValueError(f"direct fraction must be finite, got {direct_fraction}")
     out = np.empty_like(sh)
-    sh = sh.view()
-    sh.flags.writeable = False  # one kernel specialisation whether or not the caller's array is read-only
-    run_chunks(_shade_kernel, n, sh, lit, t, k, float(direct_fraction), SH_C0, out, min_chunk=4096, threads=threads)
+    run_chunks(_shade_kernel, n, read_only(sh), lit, t, k, float(direct_fraction), SH_C0, out, min_chunk=4096,
+               threads=threads)
     return out
 
 
@@ -313,7 +312,5 @@ def relight_sh_coefficients(sh: np.ndarray, scale: np.ndarray, gamma: float = 1.
     if not math.isfinite(gamma):
         raise ValueError(f"gamma must be finite, got {gamma}")
     out = np.empty_like(sh)
-    sh = sh.view()
-    sh.flags.writeable = False  # one kernel specialisation whether or not the caller's array is read-only
-    _relight_kernel(sh, scale, float(gamma), SH_C0, out)
+    _relight_kernel(read_only(sh), scale, float(gamma), SH_C0, out)
     return out

@@ -146,12 +146,12 @@ def test_merged_distance_is_one_texel_and_far_clusters_use_it():
     centre = np.array([2.0, 2.0, 1.0])
     far = m.far_clusters(centre, 1.0)
     assert np.array_equal(far, np.linalg.norm(m.centres - centre, axis=1) >= 1.0) and far.any() and not far.all()
-    assert merge_capacity(152746) == 38186
 
 
-def _two_avatar_shot(path: Path) -> Path:
+def _two_avatar_shot(path: Path, second_spread: float = 0.12) -> Path:
     """tiny_shot's room and lamp with two dense moving avatars 1.5 m apart (each 4,000 Gaussians in a
-    12 cm ball: a few hundred 3 cm cells, far enough from the other's probe to draw merged)."""
+    12 cm ball: a few hundred 3 cm cells, far enough from the other's probe to draw merged; the
+    second spread over ``second_spread`` metres instead)."""
     from pxr import Gf, Usd, UsdGeom
 
     from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
@@ -162,8 +162,8 @@ def _two_avatar_shot(path: Path) -> Path:
     tiny_shot(path, n_scene=3000, n_avatar=4000, frames=3)
     stage = Usd.Stage.Open(str(path))
     stage.RemovePrim("/World/Avatar")  # (written again below, without tiny_shot's raw fields)
-    for name, seed, x in (("/World/Avatar", 11, -0.75), ("/World/Second", 12, 0.75)):
-        g = _set(4000, 1, seed, 0.12)
+    for name, seed, x, spread in (("/World/Avatar", 11, -0.75, 0.12), ("/World/Second", 12, 0.75, second_spread)):
+        g = _set(4000, 1, seed, spread)
         g.positions[:, 1] += np.float32(1.0)
         g.opacities[:] = np.maximum(g.opacities, np.float32(0.3))
         write_gaussian_prim(stage, name, g)
@@ -229,3 +229,28 @@ def test_probe_merge_cell_out_of_range_exits_2(tmp_path, capsys):
     assert main(["process", str(tmp_path / "missing.usda"), "--config", str(cfg)]) == 2
     err = capsys.readouterr().err
     assert "probe_merge_cell" in err and "-0.5" in err
+
+
+def test_a_prim_that_merges_into_more_clusters_than_its_rows_is_drawn_as_it_is(tmp_path, monkeypatch):
+    """The second avatar spread over 2 m: nearly every Gaussian in a cell of its own, more clusters
+    than its merge_capacity rows (a quarter of its count): the first avatar's probe draws every one
+    of its Gaussians, while the second's probe still draws the first merged."""
+    import usd_gs.pipeline.shot as shot
+
+    drawn = {}
+    plain = shot.ShotProcessor._merged_mask
+
+    def spy(self, mask, path, centre, spans):
+        plain(self, mask, path, centre, spans)
+        other = "/World/Second" if path == "/World/Avatar" else "/World/Avatar"
+        a, b = spans[other]
+        slot, room = self._buffer[3][other]
+        drawn.setdefault(path, []).append((int(mask[a:b].sum()), int(mask[slot:slot + room].sum()), b - a, room))
+
+    monkeypatch.setattr(shot.ShotProcessor, "_merged_mask", spy)
+    s = _two_avatar_shot(tmp_path / "shot.usda", second_spread=2.0)
+    assert main(["process", str(s), "--avatar", "/World/Avatar", "--avatar", "/World/Second", "-q", "-o",
+                 str(tmp_path / "o.usdc")]) == 0
+    assert all(full == n and merged == 0 and room == merge_capacity(n)
+               for full, merged, n, room in drawn["/World/Avatar"]), drawn
+    assert all(full == 0 and merged > 0 for full, merged, _, _ in drawn["/World/Second"]), drawn

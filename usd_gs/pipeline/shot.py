@@ -972,7 +972,9 @@ class ShotProcessor:
             if path not in self._merged:
                 buf, (a, room) = self._buffer[1], self._buffer[3][path]
                 m = MergedPrim.of(self._merge_due[path], self.opts.probe_merge_cell / self.mpu)
-                if m.count <= room:
+                if m.count > room:
+                    m = None
+                else:
                     b, k = a + m.count, buf.sh.shape[1]
                     buf.positions[a:b] = m.positions
                     buf.orientations[a:b] = m.orientations
@@ -980,7 +982,7 @@ class ShotProcessor:
                     buf.opacities[a:b] = m.opacities
                     buf.sh[a:b, m.sh.shape[1]:] = 0.0
                     buf.sh[a:b, : m.sh.shape[1]] = m.sh[:, :k]
-                self._merged[path] = m if m.count <= room else None
+                self._merged[path] = m
             return self._merged[path]
 
     def _merged_mask(self, mask: np.ndarray, path: str, centre, spans: dict) -> None:
@@ -1312,9 +1314,10 @@ class ShotProcessor:
             spans = {p: (int(offsets[i]), int(offsets[i + 1])) for i, p in enumerate(order)}
             slots, at = {}, int(offsets[-1])
             for p, g in dyn.items():
-                if self._merge_rows([g.count]):
-                    slots[p] = (at, self._merge_rows([g.count]))
-                    at += slots[p][1]
+                room = self._merge_rows([g.count])
+                if room:
+                    slots[p] = (at, room)
+                    at += room
             shared = self._static_shared
             if (shared is not None and shared[1].count == at and shared[0].count == offsets[len(self.static)]
                     and all(g.sh.shape[1] <= shared[1].sh.shape[1] for g in dyn.values())):

@@ -42,11 +42,9 @@ def merge_capacity(count: int) -> int:
 @dataclass
 class MergedPrim:
     """A moving prim's merged Gaussians at one frame: ``labels`` (N,) int64 the cluster of each of
-    its Gaussians, ``centres`` (M, 3) float64 the clusters' centres (stage units), and the merged
-    set's arrays (float32) in cluster order."""
+    its Gaussians, and the merged set's arrays (float32, stage units) in cluster order."""
 
     labels: np.ndarray
-    centres: np.ndarray
     positions: np.ndarray
     orientations: np.ndarray
     scales: np.ndarray
@@ -55,14 +53,19 @@ class MergedPrim:
 
     @property
     def count(self) -> int:
-        return int(self.centres.shape[0])
+        return int(self.positions.shape[0])
+
+    @property
+    def centres(self) -> np.ndarray:
+        """(M, 3) float64 the clusters' centres."""
+        return self.positions.astype(np.float64)
 
     @classmethod
     def of(cls, g, cell: float) -> MergedPrim:
         """Set ``g`` (a ``GaussianSet``, world space) merged per cell of ``cell`` stage units."""
         labels, pos, quat, scales, opac, sh = merge_cells(g.positions, g.orientations, g.scales, g.opacities, g.sh,
                                                           cell)
-        return cls(labels, pos.astype(np.float64), pos, quat, scales, opac, sh)
+        return cls(labels, pos, quat, scales, opac, sh)
 
     def far_clusters(self, centre, distance: float) -> np.ndarray:
         """(M,) bool: the clusters whose centre lies at least ``distance`` from ``centre`` (3,)."""
