@@ -16,9 +16,11 @@ every moving receiver Gaussian looking up the other avatars' shadows (``moving_r
 0) / with every Gaussian of the other avatars drawn in each probe (``probe_merge_cell`` 0), and
 their time and the default's relit colour difference from them are printed; ``--rounds R`` adds
 R - 1 more pairs of runs (the default, then that setting), alternating (this host's load moves a
-single run's figures more than such a setting does).
+single run's figures more than such a setting does). ``--table-rounds R`` runs the counts R times,
+alternating, and prints each round's ratios to N = 1 and their median.
 
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py [--frames 1-6] [--counts 1,2,4,8]
+        [--table-rounds R]
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py --tasks --frames 1-4 --counts 1,4
         [--config FILE]
 """
@@ -166,6 +168,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=1,
                     help="pairs of runs (the default, then the other setting) for --exact-count / --merge-count: "
                          "the first after the main table, the others alternating")
+    ap.add_argument("--table-rounds", type=int, default=1,
+                    help="run the counts this many times, alternating (each round's ratios and their median printed)")
     ap.add_argument("--config", type=Path, default=None, help="a usdgs process --config file for every run")
     ap.add_argument("--tasks", action="store_true",
                     help="instead: each shadow-pass task timed on one thread, one after the other (s/frame over "
@@ -180,11 +184,23 @@ def main() -> None:
                                  a.config)
             print(f"{n} avatar(s): " + ", ".join(f"{k} {v:.3f}" for k, v in sorted(t.items(), key=lambda kv: -kv[1])))
         return
-    rows = []
-    for n in counts:
-        s = run(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.lit.usdc", a.frames, a.config)
-        steady = s["frame_seconds"][1:] or s["frame_seconds"]
-        rows.append((n, sum(steady) / len(steady), s["seconds_per_frame"], s["frame_seconds"][0]))
+    shots = {n: make_shot(Path(a.demo_data), n, work) for n in counts}
+    ratios = {n: [] for n in counts}
+    for r in range(a.table_rounds):
+        rows = []
+        for n in counts:
+            s = run(shots[n], work / f"bikers_{n}.lit.usdc", a.frames, a.config)
+            steady = s["frame_seconds"][1:] or s["frame_seconds"]
+            rows.append((n, sum(steady) / len(steady), s["seconds_per_frame"], s["frame_seconds"][0]))
+        for n, steady, _, _ in rows:
+            ratios[n].append(steady / rows[0][1])
+        if a.table_rounds > 1:
+            print(f"round {r + 1}: " + ", ".join(f"{n} avatar(s) {steady:.3f} s/frame ({steady / rows[0][1]:.2f}x)"
+                                                  for n, steady, _, _ in rows), flush=True)
+    if a.table_rounds > 1:
+        print(f"x N=1 over {a.table_rounds} rounds (median, min, max): " + ", ".join(
+            f"{n}: {np.median(v):.2f} ({min(v):.2f}-{max(v):.2f})" for n, v in ratios.items())
+              + " (the table: the last round)")
     base = rows[0][1]
     print(f"frames {a.frames}; per frame: shadows (incl. probe renders) + relighting, mean over frames 2..")
     print(f"{'avatars':>7s} {'s/frame':>8s} {'x N=1':>6s} {'x N':>6s} {'frame 1':>8s} {'job s/frame':>12s}")

@@ -13,6 +13,11 @@ all frames and prims). The demo has nothing beyond the radius: its output is the
 without the far field.
 
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_far_field.py [--frames 1-8] [--workdir DIR]
+        [--rounds R] [--threads T]
+
+``--rounds R``: the demo and the far-field run R times each, alternating (this host's load moves
+from minute to minute), with each round's ratio printed; ``--threads T``: kernel and task threads
+(numba's count; 1: each probe task's time is its CPU time, not shared with the task beside it).
 """
 
 from __future__ import annotations
@@ -99,15 +104,33 @@ def main() -> None:
     ap.add_argument("--frames", default="1-8")
     ap.add_argument("--workdir", default=None)
     ap.add_argument("--demo", default="stages/demo.usda")
+    ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=None)
     a = ap.parse_args()
+    if a.threads:
+        import numba
+
+        numba.set_num_threads(a.threads)
     work = Path(a.workdir or tempfile.mkdtemp(prefix="bench_far_"))
     work.mkdir(parents=True, exist_ok=True)
     large = make_large_shot(Path(a.demo).resolve(), work)
     runs = collections.OrderedDict()
-    runs["demo"] = run(Path(a.demo).resolve(), work / "demo.lit.usdc", a.frames, None)
     runs["large, far field off"] = run(large, work / "large_off.lit.usdc", a.frames, {"probe_far_radius": 0.0})
-    runs["large, far field"] = run(large, work / "large_far.lit.usdc", a.frames, None)
-    print(f"frames {a.frames}; probe = the relit prims' probe renders + transfers, s/frame after frame 1")
+    ratios = []
+    for r in range(a.rounds):
+        runs["demo"] = run(Path(a.demo).resolve(), work / "demo.lit.usdc", a.frames, None)
+        runs["large, far field"] = run(large, work / "large_far.lit.usdc", a.frames, None)
+        ratios.append(runs["large, far field"]["probe_steady"] / runs["demo"]["probe_steady"])
+        if a.rounds > 1:
+            print(f"round {r + 1}: probe s/frame demo {runs['demo']['probe_steady']:.3f}, far field "
+                  f"{runs['large, far field']['probe_steady']:.3f} ({ratios[-1]:.2f}x)", flush=True)
+    if a.rounds > 1:
+        print(f"far field / demo over {a.rounds} rounds: median {np.median(ratios):.2f}x, "
+              f"min {min(ratios):.2f}x, max {max(ratios):.2f}x (the table: the last round)")
+    runs.move_to_end("large, far field off")
+    runs.move_to_end("large, far field")
+    print(f"frames {a.frames}; threads {a.threads or 'default'}; probe = the relit prims' probe renders + transfers, "
+          f"s/frame after frame 1")
     print(f"{'run':24s} {'s/frame':>8s} {'probe':>7s} {'probe f1':>9s} {'far layers':>11s}")
     for name, s in runs.items():
         print(f"{name:24s} {s['seconds_per_frame']:8.3f} {s['probe_steady']:7.3f} {s['probe_first']:9.2f} "

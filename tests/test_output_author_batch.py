@@ -149,3 +149,36 @@ def test_receivers_with_the_callers_half_values_author_the_same(k):
         assert flags2.tolist() == flags1.tolist(), f"frame {f}"
     assert a2.samples_written == a1.samples_written > 0
     assert _layer_content(given) == _layer_content(plain)
+
+
+def test_segment_halves_convert_the_segments_asked_for_bit_for_bit():
+    """SegmentHalves gives ``block[rows].astype(float16)`` bit for bit, segment by segment as asked
+    (in any order, the same segment again); a value beyond the half range in a segment makes only
+    a request that includes that segment (and every later one) return None."""
+    from usd_gs.usd.output_author import SegmentHalves
+
+    rng = np.random.default_rng(5)
+    counts = np.array([3, 0, 5, 2, 4])
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    block = rng.normal(0.0, 3.0, (offsets[-1], 4, 3)).astype(np.float32)
+    block[offsets[2] + 1, 2, 0] = 1e-6  # a half subnormal
+    block[offsets[3], 0, 1] = 65504.0  # the largest half
+    halves = SegmentHalves(block, offsets)
+
+    def rows_of(segs):
+        return np.concatenate([np.arange(offsets[s], offsets[s + 1]) for s in segs]).astype(np.int64)
+
+    for segs in ([3], [0, 2], [0, 1, 2, 3], [4]):
+        segs = np.array(segs)
+        got = halves.rows(segs, rows_of(segs))
+        assert got.dtype == np.float16
+        assert np.array_equal(got.view(np.uint16), block[rows_of(segs)].astype(np.float16).view(np.uint16))
+    every = halves.rows(np.arange(len(counts)), None)
+    assert np.array_equal(every.view(np.uint16), block.astype(np.float16).view(np.uint16))
+
+    block[offsets[4] + 1, 1, 2] = -70000.0  # beyond the half range, in the last segment
+    fresh = SegmentHalves(block, offsets)
+    first = fresh.rows(np.array([0, 2]), rows_of([0, 2]))
+    assert np.array_equal(first.view(np.uint16), block[rows_of([0, 2])].astype(np.float16).view(np.uint16))
+    assert fresh.rows(np.array([3, 4]), rows_of([3, 4])) is None
+    assert fresh.rows(np.array([0]), rows_of([0])) is None  # (the caller converts from then on)

@@ -335,8 +335,9 @@ def test_a_shot_without_any_light_keeps_the_relit_prims_mean_brightness(tmp_path
 
 def test_shot_buffer_shares_the_static_receivers_arrays(quick_demo, tmp_path, monkeypatch):
     """The probe renders' shot buffer is the static receivers' own arrays with the moving prims'
-    rows (and their merged rows) after them (one copy of the static scene, not two), and the output is the one the plain
-    concatenation gives (the same run with the sharing turned off: every value the same)."""
+    rows (and their merged rows) after them, and each static prim's set its rows (one copy of the
+    static scene, not two), and the output is the one the plain concatenation gives (the same run
+    with the sharing turned off: every value the same)."""
     from farm_compare import stage_differences
 
     from usd_gs.pipeline import shot as pipeline
@@ -346,15 +347,18 @@ def test_shot_buffer_shares_the_static_receivers_arrays(quick_demo, tmp_path, mo
 
     def spy(self, dyn):
         buf, spans = real(self, dyn)
-        seen.append((buf, self._static_recv.gaussians, len(self.static), spans, self._buffer[3]))
+        seen.append((buf, self._static_recv.gaussians, dict(self.static), spans, self._buffer[3]))
         return buf, spans
 
     monkeypatch.setattr(pipeline.ShotProcessor, "_shot_buffer", spy)
     shared, plain = tmp_path / "shared.usdc", tmp_path / "plain.usdc"
     argv = ["--frames", "1-2", "-q", *EXACT]
     assert main(["process", str(quick_demo), "-o", str(shared), *argv]) == 0
-    buf, recv, n_static, spans, slots = seen[-1]
+    buf, recv, static, spans, slots = seen[-1]
     assert np.shares_memory(buf.positions, recv.positions) and np.shares_memory(buf.sh, recv.sh)
+    # each static prim's own set is its rows of the buffer (the arrays read from USD are let go)
+    assert len(static) > 1 and all(np.shares_memory(g.positions, buf.positions) and np.shares_memory(g.sh, buf.sh)
+                                   and not g.positions.flags.writeable for g in static.values())
     # then the rows of the moving prims merged for the probes (usd_gs.relight.probe_merge)
     end = max(spans[p][1] for p in spans)
     assert slots and min(a for a, _ in slots.values()) == end

@@ -35,6 +35,7 @@ from pxr import Usd, UsdGeom
 
 from numba_kernels.capsule import within_capsule
 from numba_kernels.cubemap_dirs import cube_face_solid_angles
+from numba_kernels.jit_options import read_only
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from numba_kernels.thread_chunks import thread_count
 from usd_gs.errors import UserError
@@ -82,7 +83,7 @@ from usd_gs.usd.gaussian_prim import (
     retyped_message,
 )
 from usd_gs.usd.lux import ShotLight, read_stage_lights
-from usd_gs.usd.output_author import OutputAuthor, half_of, within_half
+from usd_gs.usd.output_author import OutputAuthor, SegmentHalves
 from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.skel import has_skel_binding
@@ -503,6 +504,15 @@ class ShotProcessor:
         part = GaussianSet(whole.positions[:n], whole.orientations[:n], whole.scales[:n], whole.opacities[:n],
                            whole.sh[:n], label="receivers")
         self._static_shared = (part, whole)
+        # each static prim's set becomes its rows of the whole (the same values, read-only as the
+        # arrays read from USD are), so that those arrays are freed: one copy of the static scene
+        at = 0
+        for p, g in list(self.static.items()):
+            if g.sh.shape[1] == whole.sh.shape[1]:
+                self.static[p] = GaussianSet(*(read_only(getattr(whole, f)[at:at + g.count]) for f in
+                                               ("positions", "orientations", "scales", "opacities", "sh")),
+                                             label=g.label)
+            at += g.count
         return self._static_shared
 
     # ------------------------------------------------------------------ per frame
@@ -605,16 +615,22 @@ class ShotProcessor:
         extra, shares, results = results[:len(extra)], results[len(extra)], results[len(extra) + 1:]
         start = 0
         for tasks, apply, _ in work:
-            ts, td, hits = apply(results[start:start + len(tasks)])
+            hits, td = apply(results[start:start + len(tasks)])
             start += len(tasks)
-            s_light.append(ts)
+            s_light.append(hits)
             d_light.append(td)
-            touched.extend(hits)
-        # static receivers: combine lights only where some light is blocked
+            touched.extend(idx for idx, _ in hits)
+        # static receivers: combine lights only where some light is blocked (each light's
+        # transmittance there: the product of its casters')
         u = np.unique(np.concatenate(touched)) if touched else np.zeros(0, np.int64)
         t_static_u = np.ones(0, np.float32)
         if u.size:
-            per = [ts[u] for ts in s_light]
+            per = []
+            for hits in s_light:
+                t_light = np.ones(u.size)
+                for idx, val in hits:
+                    t_light[np.searchsorted(u, idx)] *= val
+                per.append(t_light)
             t_static_u = combine_lights(per, light_shares(lights, srecv.gaussians.positions[u]))
         # moving receivers: the lights' shares only where some light is blocked (elsewhere every
         # light gives 1, and so does any mix of them: combine_lights snaps it to exactly 1)
@@ -688,11 +704,10 @@ class ShotProcessor:
         scene's shadow on the moving receivers from its shot-long atlas (built once per shot and
         light, voxel columns on demand: ``StaticSceneAtlas`` for a point light,
         ``StaticSceneSunAtlas`` for a directional one). Returns ``(tasks, apply, steps)``: ``apply(results)``
-        combines the tasks' results in a fixed order into ``(static transmittance, moving
-        transmittance, the static receivers some caster shadows)``, the same values whether the
+        combines the tasks' results in a fixed order into ``(hits, moving transmittance)``, ``hits``
+        a list of ``(idx, T)`` per caster, the static receivers it shadows (T < 1), the same values whether the
         tasks ran one after the other or side by side, in any order; ``steps`` names each task
         (its kind and prim)."""
-        srecv = self._static_recv
         tasks, steps = [], []
         for q in self._casters_dyn:
             tasks.append(partial(self._caster_task, q, light, sets[q], drecv, movers))
@@ -713,14 +728,13 @@ class ShotProcessor:
             steps.append(("scene", None))
 
         def apply(results):
-            ts = np.ones(srecv.gaussians.count)
-            hits = []
+            hits = []  # the static receivers each caster shadows, with their transmittance
             td = np.ones(drecv.gaussians.count)
             for (kind, q), res in zip(steps, results, strict=True):
                 if kind == "cast":
                     (idx, val), (idx_d, val_d) = res
-                    ts[idx] *= val
-                    hits.append(idx[val < 1.0])
+                    below = val < 1.0
+                    hits.append((idx[below], val[below]))
                     td[idx_d] *= val_d
                 elif kind == "self":
                     idx_o, val_o = res
@@ -736,7 +750,7 @@ class ShotProcessor:
                         own[a:b] *= vs[nearest]  # each Gaussian takes its nearest sample's self-shadow
                 elif res is not None:
                     td[res[0]] *= res[1]
-            return ts, td, hits
+            return hits, td
 
         return tasks, apply, steps
 
@@ -1201,9 +1215,10 @@ class ShotProcessor:
                 sh_block = np.concatenate(local).astype(np.float32, copy=False) if regular else None
             # and as the float16 the output holds, for a half-precision output of an all-float32 block
             # within the half range (else the author converts, or names the value that overflows)
+            # (converted prim by prim where first authored: SegmentHalves)
             halve = (sh_block is not None and author.precision == "half" and sh_block.dtype == np.float32
-                     and sh_block.size > 0 and within_half(sh_block))
-            block = (offsets, sh_block, half_of(sh_block) if halve else None) if regular else False
+                     and sh_block.size > 0)
+            block = (offsets, sh_block, SegmentHalves(sh_block, offsets) if halve else None) if regular else False
             self._static_sh_block = block
         if block is not False:
             # every static receiver at once: the same values as the prim-by-prim loop below
@@ -1218,19 +1233,19 @@ class ShotProcessor:
             sub = np.concatenate([[0], np.cumsum(counts)])
             every = len(cand) == len(paths)  # (then the rows are the block's, in order: no gathers)
             rows = None if every else np.repeat(offsets[cand] - sub[:-1], counts) + np.arange(sub[-1])
-            tp = np.ones(offsets[-1], np.float32)
-            tp[u] = t_static_u
-            ks = np.ones(offsets[-1], np.float32)
-            ks[u] = sky_u
-            if not every:
-                tp, ks = tp[rows], ks[rows]
+            # (the touched receivers lie in the candidates' rows, which increase)
+            at = u if every else np.searchsorted(rows, u)
+            tp = np.ones(sub[-1], np.float32)
+            tp[at] = t_static_u
+            ks = np.ones(sub[-1], np.float32)
+            ks[at] = sky_u
             sh_in = sh_block if every else sh_block[rows]
             sh_out = sh_in
             lit = np.repeat(shadowed[cand], counts)
             if lit.any():  # (in this thread: it runs beside the next frame's kernel-heavy shadow tasks)
                 sh_out = shade_sh_rows(sh_in, lit, tp, ks, f, threads=False)
             done = author.receivers(frame, [paths[k] for k in cand], sub, tp, sh_out, sh_in,
-                                    None if halves is None else (halves if every else halves[rows]))
+                                    None if halves is None else halves.rows(cand, None if every else rows))
             affected += [paths[k] for k, d in zip(cand, done, strict=True) if d]
         else:
             owner = np.searchsorted(np.array([srecv.ranges[p][1] for p in paths]), u, side="right")

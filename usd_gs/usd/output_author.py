@@ -151,6 +151,41 @@ def half_of(value: np.ndarray) -> np.ndarray:
     return half_bits(value, threads=False)
 
 
+class SegmentHalves:
+    """The float16 values (:func:`half_of`) of a float32 block that does not change, e.g. a shot's
+    static SH (M, K, 3), whose rows form consecutive segments (``offsets`` (P + 1,) from 0 to M: a
+    prim each), converted one segment at a time when it is first asked for: a frame authors only
+    the few prims it shadows, so a large static scene costs what its shadowed prims hold. The
+    block must stay unchanged while this object is used."""
+
+    def __init__(self, block: np.ndarray, offsets: np.ndarray):
+        self.block = block
+        self.offsets = np.asarray(offsets, np.int64)
+        self._values = np.empty(block.shape, np.float16)  # (pages touched where converted only)
+        self._done = np.zeros(len(self.offsets) - 1, bool)
+        self._usable = True
+
+    def rows(self, segments: np.ndarray, rows: np.ndarray | None) -> np.ndarray | None:
+        """float16 of the rows ``rows`` (increasing; None: every row, when ``segments`` holds every
+        segment) of the segments ``segments`` (increasing indices). None when a value lies beyond
+        the half range or is NaN (the caller converts, and names the element)."""
+        if not self._usable:
+            return None
+        new = segments[~self._done[segments]]
+        if new.size:
+            starts, ends = self.offsets[new], self.offsets[new + 1]
+            counts = ends - starts
+            sub = np.concatenate([[0], np.cumsum(counts)])
+            fresh = np.repeat(starts - sub[:-1], counts) + np.arange(sub[-1])
+            part = self.block[fresh]
+            if part.size and not within_half(part):
+                self._usable = False
+                return None
+            self._values[fresh] = half_of(part)
+            self._done[new] = True
+        return self._values if rows is None else self._values[rows]
+
+
 def _to_half(value: np.ndarray, prim_path: str) -> np.ndarray:
     """``value`` as float16; ``UserError`` naming the prim and element where it overflows."""
     if not value.size or within_half(value):  # fast path: two reductions, no temporaries
