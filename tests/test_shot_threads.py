@@ -213,3 +213,54 @@ def test_normals_estimated_ahead_side_by_side_give_the_same_output(tmp_path, mon
     monkeypatch.setattr(shot_mod.ShotProcessor, "_estimate_normals_ahead", lambda self, prims, frame: None)
     assert main([*argv, "-o", str(tmp_path / "inline.usdc")]) == 0
     assert stage_differences(tmp_path / "ahead.usdc", tmp_path / "inline.usdc", [1, 2, 3]) == []
+
+
+def test_moving_casters_pack_and_bound_each_prim_once_for_every_task():
+    """The shadow tasks share each moving caster's packing and the moving prims' bounding spheres:
+    computed once by the first task that asks (here eight threads at once), equal to the direct
+    ``prepare_occluders`` / ``prim_spheres`` / ``occluder_sphere`` values."""
+    import threading
+
+    import numpy as np
+
+    from usd_gs.pipeline.shot import _MovingCasters
+    from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
+    from usd_gs.shadows.shot import Receivers, occluder_sphere, prim_spheres
+    from usd_gs.synthetic import random_gaussians
+
+    cfg = DGSMConfig()
+    sets = {"/A": random_gaussians(400, 0, seed=1), "/B": random_gaussians(300, 1, seed=2),
+            "/C": random_gaussians(200, 0, seed=3)}  # /C casts but receives nothing
+    sets["/B"].positions[:] += 2.0
+    drecv = Receivers.build([(p, sets[p]) for p in ("/A", "/B")])
+    calls = []
+
+    def pack(q):
+        calls.append(q)
+        return prepare_occluders(sets[q], cfg)
+
+    movers = _MovingCasters(["/A", "/B", "/C"], pack, sets, drecv, cfg.k_sigma)
+    got = {}
+    start = threading.Barrier(8)
+
+    def task(i):
+        start.wait()
+        q = ["/A", "/B", "/C"][i % 3]
+        got[i] = (q, movers.packed(q), movers.bound(q), movers.receiver_spheres())
+
+    threads = [threading.Thread(target=task, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(calls) == ["/A", "/B", "/C"]  # each caster packed once
+    spheres = prim_spheres(drecv, cfg.k_sigma)
+    for q, packed, bound, receivers in got.values():
+        want = prepare_occluders(sets[q], cfg)
+        (occ, dir_dep, cov6), (occ_w, dir_dep_w, cov6_w) = packed, want
+        assert np.array_equal(occ, occ_w) and np.array_equal(cov6, cov6_w) and dir_dep == dir_dep_w
+        c, r = spheres[q] if q in spheres else occluder_sphere(sets[q], cfg.k_sigma)
+        assert np.array_equal(bound[0], c) and bound[1] == r
+        assert receivers.keys() == {"/A", "/B"} and all(
+            np.array_equal(receivers[p][0], spheres[p][0]) and receivers[p][1] == spheres[p][1] for p in receivers)
+    assert movers.bound("/C")[1] == occluder_sphere(sets["/C"], cfg.k_sigma)[1]

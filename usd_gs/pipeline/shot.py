@@ -146,14 +146,46 @@ class FrameShadows:
     sky_touched: np.ndarray | None = None
 
 
-@dataclass
 class _MovingCasters:
-    """Per frame: each moving caster's packed occluders and bounding sphere, and the bounding
-    sphere of each moving receiver (prim-level culling against a caster's beam)."""
+    """Per frame, what the shadow pass's tasks share about the moving prims, each computed once by
+    the first task that asks for it (a lock each: the work runs in the tasks' threads, not serially
+    before them): each moving caster's packed occluders (:meth:`packed`, from ``pack(q)``) and
+    bounding sphere (:meth:`bound`), and each moving receiver's bounding sphere
+    (:meth:`receiver_spheres`, for prim-level culling against a caster's beam). ``casters``: the
+    moving casters; ``sets``: path -> this frame's set; ``drecv``: the moving receivers."""
 
-    packed: dict
-    bound: dict
-    receiver_spheres: dict
+    def __init__(self, casters: list, pack, sets: dict, drecv: Receivers, k_sigma: float):
+        self.casters = list(casters)
+        self._pack, self._sets, self._drecv, self._k = pack, sets, drecv, float(k_sigma)
+        self._packed: dict = {}
+        self._locks = {q: threading.Lock() for q in self.casters}
+        self._spheres_lock = threading.Lock()
+        self._spheres = None
+
+    def packed(self, q: str):
+        """Caster ``q``'s packed occluders (``prepare_occluders``)."""
+        with self._locks[q]:
+            if q not in self._packed:
+                self._packed[q] = self._pack(q)
+            return self._packed[q]
+
+    def _sphere_sets(self) -> tuple[dict, dict]:
+        with self._spheres_lock:
+            if self._spheres is None:
+                # (one threaded pass over the receivers; the same values as occluder_sphere)
+                rs = prim_spheres(self._drecv, self._k)
+                self._spheres = ({q: rs[q] if q in rs else occluder_sphere(self._sets[q], self._k)
+                                  for q in self.casters},
+                                 {p: rs[p] for p in self._drecv.ranges if self._sets[p].count})
+            return self._spheres
+
+    def bound(self, q: str):
+        """Caster ``q``'s bounding sphere ``(centre, radius)`` of its ``k_sigma`` extent."""
+        return self._sphere_sets()[0][q]
+
+    def receiver_spheres(self) -> dict:
+        """path -> bounding sphere of every moving receiver with Gaussians."""
+        return self._sphere_sets()[1]
 
 
 def run_tasks(tasks: list, meanwhile=None, costs=None, sizes=None) -> list:
@@ -492,7 +524,7 @@ class ShotProcessor:
         its own copy) where the buffer could differ from the plain concatenation: a moving prim of
         a higher SH degree, or raw log-scales, logit opacities or extras that concatenation keeps."""
         static = list(self.static.values())
-        moving = [r.path for r in self.roles if r.per_frame]
+        moving = self._moving_paths
         if not static or any(g.log_scales is not None or g.logit_opacities is not None or g.extras for g in static):
             return None
         degree = max(g.sh_degree for g in static)
@@ -521,7 +553,7 @@ class ShotProcessor:
         The authoring is left for the next frame's shadow tasks to overlap (:meth:`flush_writes`)."""
         self._frame_now = frame
         t = time.perf_counter()
-        dyn = {r.path: self._read(r.path, frame) for r in self.roles if r.per_frame}
+        dyn = {p: self._read(p, frame) for p in self._moving_paths}
         sets = {**self.static, **dyn}
         self.clock.add("read", t)
         lights = self._lights(frame)
@@ -584,16 +616,13 @@ class ShotProcessor:
         t = clk.add("prepare", t)
 
         cfg = self.dgsm
-        packed = {q: self._packed_caster(q, sets[q]) for q in self._casters_dyn} if lights else {}
         # what casters with nothing time-sampled gave under lights that are no longer used
         used = {_light_key(lt) for lt in lights}
         self._held_shadows = {k: v for k, v in self._held_shadows.items() if k[2] in used}
-        # bounding spheres of the moving prims (one threaded pass over the receivers; the same
-        # values as occluder_sphere), for prim-level culling against each caster's beam, as for the bricks
-        rspheres = prim_spheres(drecv, cfg.k_sigma) if packed else {}
-        bound = {q: rspheres[q] if q in rspheres else occluder_sphere(sets[q], cfg.k_sigma) for q in packed}
-        dspheres = {p: rspheres[p] for p in self._dyn_recv_paths if sets[p].count} if packed else {}
-        movers = _MovingCasters(packed, bound, dspheres)
+        # the moving casters' packings and the moving prims' bounding spheres (prim-level culling
+        # against each caster's beam, as for the bricks), made by the tasks that use them
+        movers = _MovingCasters(self._casters_dyn if lights else [], lambda q: self._packed_caster(q, sets[q]),
+                                sets, drecv, cfg.k_sigma)
         self._self_vis = {}  # this frame's self-shadowing of relit prims: (prim, id(light)) -> (N_moving,)
         s_light, d_light, touched = [], [], []
         # every light's casters, self-shadows and static-scene lookups side by side in threads
@@ -771,7 +800,7 @@ class ShotProcessor:
         ``((idx, T) static, (idx, T) moving)`` (``shared_transmittance``)."""
         cfg = self.dgsm
         srecv = self._static_recv
-        bound = movers.bound[q]
+        bound = movers.bound(q)
         held = ("cast", q, _light_key(light)) if q in self._constant else None
         res_s = self._held_shadows.get(held) if held is not None else None
         part_s = None
@@ -781,20 +810,20 @@ class ShotProcessor:
                 cand = np.concatenate([np.arange(*srecv.ranges[p]) for p in hit])
                 part_s = receiver_points(g, srecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
         part_d = None
-        dhit = [p for p in prims_in_shadow(movers.receiver_spheres, g, light, cfg.k_sigma, bound) if p != q]
+        dhit = [p for p in prims_in_shadow(movers.receiver_spheres(), g, light, cfg.k_sigma, bound) if p != q]
         maps = {p: self._receiver_sample_map(p, drecv) for p in dhit}
         if dhit:
             cand = np.concatenate([drecv.ranges[p][0] + maps[p][0] for p in dhit])
             part_d = receiver_points(g, drecv, light, cfg, roi=self.opts.roi, candidates=cand, sphere=bound)
         if held is None:
-            res_s, res_d = shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed[q])
+            res_s, res_d = shared_transmittance(g, [part_s, part_d], light, cfg, movers.packed(q))
         else:
             # a caster that does not move under a light that does not move: its shadows on the static
             # receivers are the same at every frame, from a DGSM of those receivers alone (one per shot:
             # a chunk of a farm run gets the whole run's values); the moving receivers' from their own
             if res_s is None:
-                res_s = self._held_shadows[held] = shared_transmittance(g, [part_s], light, cfg, movers.packed[q])[0]
-            res_d = shared_transmittance(g, [part_d], light, cfg, movers.packed[q])[0]
+                res_s = self._held_shadows[held] = shared_transmittance(g, [part_s], light, cfg, movers.packed(q))[0]
+            res_d = shared_transmittance(g, [part_d], light, cfg, movers.packed(q))[0]
         return res_s, _spread_samples(res_d, dhit, maps, drecv)
 
     def _scene_shadow_task(self, block, drecv: Receivers, light, atlas):
@@ -946,12 +975,28 @@ class ShotProcessor:
     @property
     def _all_constant(self) -> bool:
         """True when no prim processed per frame has anything time-sampled."""
-        return all(r.path in self._constant for r in self.roles if r.per_frame)
+        return all(p in self._constant for p in self._moving_paths)
+
+    def _role_paths(self) -> tuple[list, list]:
+        """``(the prims processed per frame, the relit avatars and objects)``, in the order of the
+        roles; computed once per list of roles (the roles are frozen; a shot has thousands of
+        bricks, and these are asked for several times a frame)."""
+        got = self.__dict__.get("_role_lists")
+        if got is None or got[0] is not self.roles:
+            moving = [r for r in self.roles if r.per_frame]
+            got = self._role_lists = (self.roles, [r.path for r in moving],
+                                      [r.path for r in moving if r.relight and r.role in ("avatar", "object")])
+        return got[1], got[2]
+
+    @property
+    def _moving_paths(self) -> list:
+        """The prims processed per frame (``ResolvedRole.per_frame``), in the order of the roles."""
+        return list(self._role_paths()[0])
 
     @property
     def _relit_paths(self) -> list:
         """The relit avatars and objects, in the order of the roles."""
-        return [r.path for r in self.roles if r.per_frame and r.relight and r.role in ("avatar", "object")]
+        return list(self._role_paths()[1])
 
     def _relight_jobs(self, dyn: dict, sets: dict, frame: float, lights=()) -> list:
         """``[(path, relight_factors keyword arguments without visibility)]`` of every relit avatar
