@@ -1,6 +1,6 @@
 """GaussianSet.extent (its numba kernel, numba_kernels.extent, and its numpy path),
-GaussianSet.subset, the row-blocked matmul of GaussianSet.transformed and
-unit_quaternions against the row-by-row numpy implementation: the same float32 boxes bit for bit
+GaussianSet.subset and unit_quaternions against the row-by-row numpy implementation: the same
+float32 boxes bit for bit
 (the output stage's extents and the shadow culling depend on them), the same error for a box
 that does not fit in float32."""
 
@@ -120,22 +120,6 @@ def test_subset_fast_path_equals_the_checked_construction(index):
     for k in want.extras:
         assert got.extras[k].dtype == want.extras[k].dtype and got.extras[k].flags.c_contiguous
         np.testing.assert_array_equal(got.extras[k], want.extras[k])
-
-
-def test_row_blocked_matmul_equals_one_matmul():
-    from usd_gs.gaussians import _MATMUL_ROWS, _matmul_rows
-
-    rng = np.random.default_rng(4)
-    for n in (1, 5, _MATMUL_ROWS, _MATMUL_ROWS + 1, 3 * _MATMUL_ROWS + 7, 200_000):
-        a = (rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 1e4])).astype(np.float32).astype(np.float64)
-        m = rng.normal(size=(4, 4))
-        got, want = _matmul_rows(a, m[:3, :3]), a @ m[:3, :3]
-        # each row is the same 3-term dot product, but OpenBLAS may pick another kernel (FMA or not)
-        # for a block's tail rows: equal within the rounding bound of a 3-term dot product
-        bound = 3 * np.finfo(np.float64).eps * (np.abs(a) @ np.abs(m[:3, :3]))
-        assert got.shape == want.shape and np.all(np.abs(got - want) <= bound)
-        if n <= _MATMUL_ROWS:  # one block: the same call
-            assert got.tobytes() == want.tobytes()
 
 
 def test_block_extents_equal_the_extent_of_each_block():

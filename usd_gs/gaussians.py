@@ -329,19 +329,19 @@ class GaussianSet:
         # Orthonormalise Q exactly (polar decomposition) so rotations stay unit.
         u, _, vt = np.linalg.svd(q)
         q = u @ vt
-        reflect = np.linalg.det(q) < 0
-        pos = _matmul_rows(self.positions.astype(np.float64), lin.T) + t
-        quat = self.unit_quaternions()
-        if reflect:
-            # Q = Q' F with F = diag(-1, 1, 1) and Q' a rotation. The new frame Q R F (its first
-            # local axis flipped: same covariance, det +1) is Q' (F R F), and F R F has the
-            # quaternion (w, x, -y, -z).
-            quat[:, 2:] *= -1.0
+        from numba_kernels.similarity import similarity_transform
+
+        reflect = bool(np.linalg.det(q) < 0)
+        # a reflection: Q = Q' F with F = diag(-1, 1, 1) and Q' a rotation. The new frame Q R F (its
+        # first local axis flipped: same covariance, det +1) is Q' (F R F), and F R F has the
+        # quaternion (w, x, -y, -z). Positions, orientations and scales in one threaded pass
+        # (numba_kernels.similarity: the float64 formulas of unit_quaternions and quaternion_multiply)
         proper = q @ np.diag([-1.0, 1.0, 1.0]) if reflect else q
-        quat = quaternion_multiply(matrix_to_quaternion(proper[None])[0], quat)
+        pos, quat, scales = similarity_transform(self.positions, self.orientations, self.scales, lin, t, s,
+                                                 matrix_to_quaternion(proper[None])[0], reflect)
         sh = sh3dgs.rotate_coefficients(self.sh, q) if (rotate_sh and self.sh_degree > 0) else self.sh.copy()
         log_scales = None if self.log_scales is None else (self.log_scales.astype(np.float64) + np.log(s))
-        return GaussianSet(pos, quat, self.scales.astype(np.float64) * s, self.opacities.copy(), sh,
+        return GaussianSet(pos, quat, scales, self.opacities.copy(), sh,
                            log_scales, None if self.logit_opacities is None else self.logit_opacities.copy(),
                            dict(self.extras), label=label)
 
@@ -376,26 +376,6 @@ class GaussianSet:
         extras = {k: np.concatenate([g.extras[k] for g in sets]) for k in sorted(keys)}
         return GaussianSet(cat("positions"), cat("orientations"), cat("scales"), cat("opacities"),
                            sh, cat("log_scales"), cat("logit_opacities"), extras, label=label)
-
-
-#: rows of one matmul in _matmul_rows: (rows x 3) @ (3 x 3) stays below OpenBLAS's threading threshold
-#: (m n k < 262144), so one thread computes each block
-_MATMUL_ROWS = 16384
-
-
-def _matmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b`` for (N, 3) ``a`` and (3, 3) ``b`` (float64), in row blocks of :data:`_MATMUL_ROWS`:
-    the same values within a 3-term dot product's rounding (each row's products are the same, but
-    OpenBLAS may round a block's tail rows with another kernel: one ulp on a Zen 3 CPU), deterministic
-    for a given N, without the BLAS threads that, on a busy machine, wait longer for each other than
-    the product takes (measured 8x on 152k rows)."""
-    n = a.shape[0]
-    if n <= _MATMUL_ROWS:
-        return a @ b
-    out = np.empty((n, b.shape[1]), np.result_type(a, b))
-    for i in range(0, n, _MATMUL_ROWS):
-        out[i:i + _MATMUL_ROWS] = a[i:i + _MATMUL_ROWS] @ b
-    return out
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:

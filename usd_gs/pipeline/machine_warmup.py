@@ -5,8 +5,9 @@ while a cold run starts. This module covers the rest, group by group, each group
 process (``python -P -m usd_gs.pipeline.machine_warmup GROUP``, launched by ``usd_gs.cli.warmup``):
 :data:`GROUPS` are ``jit_warmup.GROUPS`` plus :data:`EXTRA_GROUPS`, whole runs on :func:`tiny_shot`
 stages (``estimate`` the light estimation of closed and open captures, ``skin`` UsdSkel skinning
-of Gaussians, ``directional`` whole runs lit by a DistantLight and by a SphereLight, ``render`` the
-preview renders, ``process`` a whole run with estimated lights, the catch-all run last).
+of Gaussians and a prim's rotating transform, ``directional`` whole runs lit by a DistantLight and
+by a SphereLight, ``render`` the preview renders, ``process`` a whole run with estimated lights,
+the catch-all run last).
 """
 
 from __future__ import annotations
@@ -121,6 +122,10 @@ def _warm_up_extra(groups, folder: Path) -> None:
         for name in ("Avatar", "AvatarDQ"):
             for world in (True, False):
                 read_gaussian_prim(stage.GetPrimAtPath(f"/World/Rig/{name}"), Usd.TimeCode(2), world=world)
+        # and a prim read under a rotating transform (numba_kernels.similarity)
+        turn = np.eye(4)
+        turn[:3, :3] = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
+        random_gaussians(8, 1).transformed(turn)
         _mark("skin")
     if "directional" in groups:  # a DistantLight's shadow maps (and a SphereLight's): whole runs
         for light in ("distant", "sphere"):
