@@ -563,15 +563,16 @@ class ShotProcessor:
         jobs = self._relight_jobs(dyn, sets, frame, lights)
         self.clock.add("relight", t)
         # the probe renders and transfers need no shadow map: they run beside the shadow tasks
-        # the previous frame's authoring runs on this thread while this frame's shadow tasks run
+        # the previous frame's probe files and authoring run on this thread while this frame's shadow tasks run
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
                                                [partial(self._probe_task, path, job) for path, job in jobs],
                                                meanwhile=self.flush_writes, extra_keys=[p for p, _ in jobs])
         t = time.perf_counter()
-        relit = self._relight_pass(jobs, transfers, frame, author, probe_dir, lights, shadows)
+        relit, probes = self._relight_pass(jobs, transfers, lights, shadows)
         self.clock.add("relight", t)
         direct = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
-        self._pending_write = partial(self._author_pass, frame, author, sets, shadows, relit, direct)
+        self._pending_write = partial(self._write_frame, frame, author, probe_dir, probes, sets, shadows, relit,
+                                      direct)
 
     def _hold_frame(self, frame: float) -> bool:
         """True when ``frame`` holds the last processed frame's results, which then stand for it (nothing
@@ -589,7 +590,7 @@ class ShotProcessor:
         return True
 
     def flush_writes(self) -> float:
-        """Author the last processed frame's shadowed and relit SH if not done yet (:meth:`_frame`
+        """Write the last processed frame's probes and author its shadowed and relit SH if not done yet (:meth:`_frame`
         leaves it for the next frame's shadow tasks to overlap; the run calls this after its last
         frame). Returns the seconds it took (0 when nothing was pending)."""
         write, self._pending_write = self._pending_write, None
@@ -1091,13 +1092,14 @@ class ShotProcessor:
             done = run_tasks([partial(_local_normals_of, g) for g in due.values()])
             self._normals_ahead = {p: (g, n) for (p, g), n in zip(due.items(), done, strict=True)}
 
-    def _relight_pass(self, jobs: list, transfers: list, frame: float, author, probe_dir: Path, lights=(),
-                      shadows: FrameShadows | None = None) -> dict:
-        """``{path: (N, 3) colour factor}`` for every relit avatar and object (``usd_gs.relight.avatar``:
-        direct lights with their DGSM visibility, probe, transfer; gamma included) from its
-        :meth:`_relight_jobs` entry and its ``probe_transfer`` (``transfers``, in the same order);
-        each prim's probe is written."""
-        relit = {}
+    def _relight_pass(self, jobs: list, transfers: list, lights=(),
+                      shadows: FrameShadows | None = None) -> tuple[dict, list]:
+        """``({path: (N, 3) colour factor}, [(path, probe centre, probe)])`` for every relit avatar and
+        object (``usd_gs.relight.avatar``: direct lights with their DGSM visibility, probe, transfer;
+        gamma included) from its :meth:`_relight_jobs` entry and its ``probe_transfer``
+        (``transfers``, in the same order); the probes are written with the frame's authoring
+        (:meth:`_write_frame`)."""
+        relit, probes = {}, []
         t = time.perf_counter()
         keep = not lights and self.opts.keep_level_without_lights
         if keep and NO_LIGHT_NOTE not in self.warnings:
@@ -1107,12 +1109,19 @@ class ShotProcessor:
                          transfer=pt, keep_level=keep)  # the shadow lights, not the calibrated copies)
                  for (path, job), pt in zip(jobs, transfers, strict=True)]
         results = run_tasks(tasks)
-        t = self.clock.add("probe", t)
+        self.clock.add("probe", t)
         for (path, job), (scale, probe) in zip(jobs, results, strict=True):
             relit[path] = scale
-            self._write_probe(path, frame, job["centre"], probe, author, probe_dir)
-        self.clock.add("probe_write", t)
-        return relit
+            probes.append((path, job["centre"], probe))
+        return relit, probes
+
+    def _write_frame(self, frame: float, author, probe_dir: Path, probes: list, *author_args) -> None:
+        """A processed frame's files and samples: each relit prim's probe (:meth:`_write_probe`, in
+        order), then the shadowed and relit SH (:meth:`_author_pass` with ``author_args``); it runs
+        beside the next frame's shadow tasks (:meth:`flush_writes`)."""
+        for path, centre, probe in probes:
+            self._write_probe(path, frame, centre, probe, author, probe_dir)
+        self._author_pass(frame, author, *author_args)
 
     def _visibility(self, path: str, lights, shadows: FrameShadows | None) -> list:
         """Per light, the (N,) visibility of prim ``path``'s Gaussians (None: 1; domes None)."""
@@ -1657,8 +1666,13 @@ class ShotProcessor:
                         self._frame(f, author, probe_dir)
                     self._save_shot_cache()
                     if not written_lights and self.lights_used and self.lights_used[0].source == "estimated":
-                        self._write_lights(out.stage, [lt for lt in self.lights_used if lt.source == "estimated"],
-                                           probe_dir)
+                        write = partial(self._write_lights, out.stage,
+                                        [lt for lt in self.lights_used if lt.source == "estimated"], probe_dir)
+                        pending = self._pending_write
+                        if pending is None:
+                            write()
+                        else:  # after the frame's probes and SH (the output's prims in the order of old)
+                            self._pending_write = lambda pending=pending, write=write: (pending(), write())
                         written_lights = True
                     if bar:
                         bar.update(1)
