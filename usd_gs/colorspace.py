@@ -47,15 +47,15 @@ def from_linear(x, space: str) -> np.ndarray:
     return np.maximum(np.asarray(x, np.float64), 0.0)
 
 
-def display_factor(c, k, space: str, floor: float = 1e-4) -> np.ndarray:
+def display_factor(c, k, space: str, floor: float = 1e-4, linear=None) -> np.ndarray:
     """Per-channel factor ``f`` with ``f * c = from_linear(to_linear(c) * k)``: what scaling a
     displayed colour ``c`` (..., 3) by the linear light ratio ``k`` (same shape) means in
     ``space``. Where ``c < floor`` the factor is the one of the limit ``c -> 0`` (``k``: the
-    sRGB curve is linear there)."""
+    sRGB curve is linear there). ``linear``: ``to_linear(c, space)`` where the caller has it."""
     c = np.asarray(c, np.float64)
     k = np.maximum(np.asarray(k, np.float64), 0.0)
     if space != "srgb":
         return k
-    out = from_linear(to_linear(c, space) * k, space)
+    out = from_linear((to_linear(c, space) if linear is None else linear) * k, space)
     small = c < floor
     return np.where(small, k, out / np.where(small, 1.0, c))

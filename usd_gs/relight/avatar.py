@@ -144,14 +144,20 @@ def dc_colors(g) -> np.ndarray:
 
 @dataclass
 class ProbeTransfer:
-    """What :func:`relight_factors` needs of the probe render (:func:`probe_transfer`): ``probe``
-    the stored probe (linear radiance, fill included, degree ``probe_degree``), ``transfer`` the
-    probe the ZH transfer reads (degree ``transfer_degree``; None unless the prim carries ZH
-    fields) and ``scale`` the per-Gaussian indirect factor (N, 3) (None for a ZH prim)."""
+    """What :func:`relight_factors` needs that no shadow map changes (:func:`probe_transfer`):
+    ``probe`` the stored probe (linear radiance, fill included, degree ``probe_degree``),
+    ``transfer`` the probe the ZH transfer reads (degree ``transfer_degree``; None unless the prim
+    carries ZH fields), ``scale`` the per-Gaussian indirect factor (N, 3) (None for a ZH prim),
+    ``irradiance`` each light's unshadowed direct irradiance (N, 3) float64
+    (``usd_gs.relight.direct.direct_irradiance``; None for a dome, and the whole list None for a
+    ZH prim) and ``captured_linear`` the displayed DC colours in linear units (N, 3) float64
+    (``colorspace.to_linear``; None for a ZH prim)."""
 
     probe: SHProbe
     transfer: SHProbe | None
     scale: np.ndarray | None
+    irradiance: list | None = None
+    captured_linear: np.ndarray | None = None
 
 
 def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
@@ -159,9 +165,11 @@ def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray,
                    far=None) -> ProbeTransfer:
     """The indirect half of :func:`relight_factors` (its arguments, without ``visibility``): the probe
     render of ``everything`` where ``mask`` at ``centre``, its fill from the domes among ``lights``,
-    the fitted probe and the transfer to every Gaussian. It does not depend on any shadow map, so a
-    caller may run it while the frame's shadows are computed. ``far``: the prim's
-    ``usd_gs.relight.far_field.FarField`` (the far static scene from its cached layer), or None."""
+    the fitted probe and the transfer to every Gaussian, and the direct lights' unshadowed
+    irradiance and the captured colours in linear units (:class:`ProbeTransfer`). It does not
+    depend on any shadow map, so a caller may run it while the frame's shadows are computed.
+    ``far``: the prim's ``usd_gs.relight.far_field.FarField`` (the far static scene from its cached
+    layer), or None."""
     space = getattr(opts, "color_space", "srgb")
     domes = [lt for lt in (lights or ()) if lt.kind == "dome"]
     render = render_probe_faces if far is None else far.render
@@ -172,15 +180,21 @@ def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray,
     probe = fit_probe(full, degree=opts.probe_degree, center=centre)
     q, t_max = opts.relight_q, opts.relight_t_max
     zh = appearance is not None and "zh_color" in appearance
-    if blend is None or blend.k == 1 or zh:
+    if zh:
         tp = probe if opts.transfer_degree == opts.probe_degree else fit_probe(full, degree=opts.transfer_degree,
                                                                               center=centre)
-        return ProbeTransfer(probe, tp if zh else None, None if zh else relight_scale(normals, tp, q=q, t_max=t_max))
-    tex = cube_texels(lin.astype(np.float32), alpha, depth, centre)
-    probes = reprojected_probes(tex, blend.centres(g.positions), opts.transfer_degree)
-    probes = probes + _fill_sh(fill, alpha, opts.transfer_degree)[None]
-    return ProbeTransfer(probe, None, relight_scale(normals, probes, q=q, t_max=t_max, probe_basis="rh",
-                                                    blend=blend.weights))
+        return ProbeTransfer(probe, tp, None)
+    if blend is None or blend.k == 1:
+        tp = probe if opts.transfer_degree == opts.probe_degree else fit_probe(full, degree=opts.transfer_degree,
+                                                                              center=centre)
+        scale = relight_scale(normals, tp, q=q, t_max=t_max)
+    else:
+        tex = cube_texels(lin.astype(np.float32), alpha, depth, centre)
+        probes = reprojected_probes(tex, blend.centres(g.positions), opts.transfer_degree)
+        probes = probes + _fill_sh(fill, alpha, opts.transfer_degree)[None]
+        scale = relight_scale(normals, probes, q=q, t_max=t_max, probe_basis="rh", blend=blend.weights)
+    irradiance = [None if lt.kind == "dome" else direct_irradiance(lt, g.positions, normals) for lt in lights or ()]
+    return ProbeTransfer(probe, None, scale, irradiance, to_linear(dc_colors(g), space))
 
 
 def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
@@ -221,17 +235,17 @@ def relight_factors(g, everything, mask: np.ndarray, centre, normals: np.ndarray
         return _ratio(out, c), probe
     k = np.asarray(transfer.scale, np.float64)
     if any(lt.kind != "dome" for lt in lights):
-        k = k + direct_factors(lights, g.positions, normals, visibility) / np.pi
+        k = k + direct_factors(lights, g.positions, normals, visibility, transfer.irradiance) / np.pi
     k = gamma * k
     albedo = None if appearance is None or "albedo" not in appearance else np.asarray(appearance["albedo"], np.float64)
+    captured = transfer.captured_linear if transfer.captured_linear is not None else to_linear(c, space)
     if keep_level:
-        captured = to_linear(c, space)
         k = k * _level_scale(g, captured, k * (captured if albedo is None else albedo))
     k = np.clip(k, 0.0, t_max)
     if albedo is not None:
         out = from_linear(albedo * k, space)
         return _ratio(out, c), probe
-    return display_factor(c, k, space).astype(np.float32), probe
+    return display_factor(c, k, space, linear=captured).astype(np.float32), probe
 
 
 def _level_scale(g, captured_lin: np.ndarray, relit_lin: np.ndarray) -> float:

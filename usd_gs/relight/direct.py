@@ -129,16 +129,18 @@ def light_direction(light, point) -> np.ndarray:
     return s / max(float(np.linalg.norm(s)), 1e-12)
 
 
-def direct_factors(lights, positions: np.ndarray, normals: np.ndarray, visibility=None) -> np.ndarray:
+def direct_factors(lights, positions: np.ndarray, normals: np.ndarray, visibility=None,
+                   irradiance=None) -> np.ndarray:
     """(N, 3) float64 ``sum_l E_l(x, n) V_l(x)``: every light's direct irradiance times its
     visibility (``visibility``: list of (N,) arrays in [0, 1] per light, or None entries / None
-    for 1)."""
+    for 1). ``irradiance``: each light's :func:`direct_irradiance` at these positions and normals
+    where the caller has it (a list, None entries / None: computed here)."""
     x = np.asarray(positions, np.float64)
     out = np.zeros((x.shape[0], 3))
     for i, lt in enumerate(lights):
         if lt.kind == "dome":
             continue
-        e = direct_irradiance(lt, x, normals)
+        e = irradiance[i] if irradiance is not None and irradiance[i] is not None else direct_irradiance(lt, x, normals)
         v = None if visibility is None else visibility[i]
         out += e if v is None else e * np.clip(np.asarray(v, np.float64), 0.0, 1.0)[:, None]
     return out
