@@ -1,8 +1,7 @@
 """GaussianSet.extent (its numba kernel, numba_kernels.extent, and its numpy path),
 GaussianSet.subset and unit_quaternions against the row-by-row numpy implementation: the same
-float32 boxes bit for bit
-(the output stage's extents and the shadow culling depend on them), the same error for a box
-that does not fit in float32."""
+float32 boxes bit for bit (the output stage's extents and the shadow culling depend on them), the
+same error for a box that does not fit in float32."""
 
 from __future__ import annotations
 

@@ -408,3 +408,42 @@ def test_albedo_primvar_read_and_relit_as_albedo_times_e():
                            lights=[dome], appearance=app)
     # uniform sky of radiance 1.5: E = 1.5 pi, relit linear = albedo * 1.5, displayed sRGB-encoded
     np.testing.assert_allclose(0.5 * f, np.tile(srgb_encode(np.array([0.2, 0.4, 0.6]) * 1.5), (n, 1)), rtol=0.01)
+
+
+@pytest.mark.parametrize("space", ["linear", "srgb"])
+def test_transfer_terms_computed_ahead_give_the_same_factors(space):
+    """``probe_transfer`` (the main job runs it beside the shadow tasks) carries each light's
+    unshadowed irradiance and the captured colours in linear units; ``relight_factors`` from it
+    gives bit for bit the factors of the same transfer without them (computed after the shadows),
+    for a partly shadowed sun, a sphere light and a dome, with and without ``keep_level``; and
+    those terms are ``direct_irradiance`` and ``to_linear`` of the prim."""
+    from dataclasses import replace
+
+    from usd_gs.colorspace import to_linear
+    from usd_gs.relight.avatar import dc_colors, probe_transfer
+    from usd_gs.relight.direct import direct_irradiance
+
+    av, floor = _patch(), _grey_floor()
+    av.sh[::2, 0] = 0.7  # two colours
+    sun = ShotLight("s", "directional", direction=np.array([0.3, -1.0, 0.2]), intensity=3.0, shape="distant")
+    lamp = ShotLight("l", "point", position=np.array([0.5, 2.0, 0.0]), intensity=40.0, radius=0.1, shape="sphere")
+    dome = ShotLight("d", "dome", intensity=0.8, shape="dome")
+    lights = [sun, lamp, dome]
+    every = GaussianSet.concatenate([floor, av])
+    m = np.ones(every.count, bool)
+    m[floor.count:] = False
+    nrm = np.tile([0.0, 1.0, 0.0], (av.count, 1))
+    opts = ProcessOptions(probe_points=1, color_space=space)
+    args = (av, every, m, av.positions.mean(0), nrm, None, opts)
+    vis = [np.linspace(0.0, 1.0, av.count), np.full(av.count, 0.25), None]
+    pt = probe_transfer(*args, lights=lights)
+    assert pt.irradiance[2] is None
+    for i in (0, 1):
+        assert np.array_equal(pt.irradiance[i], direct_irradiance(lights[i], av.positions, nrm))
+    assert np.array_equal(pt.captured_linear, to_linear(dc_colors(av), space))
+    bare = replace(pt, irradiance=None, captured_linear=None)
+    for keep in (False, True):
+        f_ahead, _ = relight_factors(*args, lights=lights, visibility=vis, transfer=pt, keep_level=keep)
+        f_after, _ = relight_factors(*args, lights=lights, visibility=vis, transfer=bare, keep_level=keep)
+        assert np.array_equal(f_ahead.view(np.uint32), f_after.view(np.uint32))
+        assert not np.allclose(f_ahead[0], f_ahead[-1])  # (the sun's visibility varies along the patch)

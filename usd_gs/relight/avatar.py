@@ -163,11 +163,11 @@ class ProbeTransfer:
 def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray, blend, opts,
                    dilation: float = PROBE_DILATION, lights=(), appearance: dict | None = None,
                    far=None) -> ProbeTransfer:
-    """The indirect half of :func:`relight_factors` (its arguments, without ``visibility``): the probe
-    render of ``everything`` where ``mask`` at ``centre``, its fill from the domes among ``lights``,
-    the fitted probe and the transfer to every Gaussian, and the direct lights' unshadowed
-    irradiance and the captured colours in linear units (:class:`ProbeTransfer`). It does not
-    depend on any shadow map, so a caller may run it while the frame's shadows are computed.
+    """What :func:`relight_factors` (its arguments, without ``visibility``) computes that no shadow
+    map changes: the probe render of ``everything`` where ``mask`` at ``centre``, its fill from the
+    domes among ``lights``, the fitted probe and the transfer to every Gaussian, and the direct
+    lights' unshadowed irradiance and the captured colours in linear units (:class:`ProbeTransfer`).
+    It does not depend on any shadow map, so a caller may run it while the frame's shadows are computed.
     ``far``: the prim's ``usd_gs.relight.far_field.FarField`` (the far static scene from its cached
     layer), or None."""
     space = getattr(opts, "color_space", "srgb")
