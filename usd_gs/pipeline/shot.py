@@ -83,7 +83,7 @@ from usd_gs.usd.gaussian_prim import (
     retyped_message,
 )
 from usd_gs.usd.lux import ShotLight, read_stage_lights
-from usd_gs.usd.output_author import OutputAuthor, SegmentHalves
+from usd_gs.usd.output_author import OutputAuthor, SegmentHalves, segment_rows
 from usd_gs.usd.output_layer import OutputLayer
 from usd_gs.usd.roles import resolve_roles
 from usd_gs.usd.skel import has_skel_binding
@@ -359,7 +359,7 @@ class ShotProcessor:
         self.affected: dict[str, int] = {}
         self.probe_files = 0
         self.lights_used: list[ShotLight] = []
-        self._pending_write = None  # the last frame's authoring, if not done yet (flush_writes)
+        self._pending_writes: list = []  # the last frame's files and authoring, not done yet (flush_writes)
         self.capture = None  # usd_gs.pipeline.capture_lights.CaptureLights of an estimate
         self.capture_lines: list[str] = []  # what the estimate found (printed by usdgs process)
 
@@ -384,6 +384,12 @@ class ShotProcessor:
         self._constant = {i.path for i in infos if i.time_samples is None and not i.animated}
         self.roles, warnings = resolve_roles(infos, self.opts.scene_paths, self.opts.avatar_paths,
                                              self.opts.object_paths)
+        # (listed once: a shot has thousands of bricks, and these are asked for several times a frame)
+        #: the prims processed per frame (``ResolvedRole.per_frame``) and the relit avatars and
+        #: objects among them, in the order of the roles
+        self._moving_paths = tuple(r.path for r in self.roles if r.per_frame)
+        self._relit_paths = tuple(r.path for r in self.roles
+                                  if r.per_frame and r.relight and r.role in ("avatar", "object"))
         self.warnings += warnings
         self.frames = parse_frames(self.opts.frames, self.stage.GetStartTimeCode(), self.stage.GetEndTimeCode())
         outside = outside_warning(self.frames, self.stage.GetStartTimeCode(), self.stage.GetEndTimeCode(),
@@ -571,8 +577,8 @@ class ShotProcessor:
         relit, probes = self._relight_pass(jobs, transfers, lights, shadows)
         self.clock.add("relight", t)
         direct = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
-        self._pending_write = partial(self._write_frame, frame, author, probe_dir, probes, sets, shadows, relit,
-                                      direct)
+        self._pending_writes.append(partial(self._write_frame, frame, author, probe_dir, probes, sets, shadows,
+                                            relit, direct))
 
     def _hold_frame(self, frame: float) -> bool:
         """True when ``frame`` holds the last processed frame's results, which then stand for it (nothing
@@ -590,15 +596,17 @@ class ShotProcessor:
         return True
 
     def flush_writes(self) -> float:
-        """Write the last processed frame's probes and author its shadowed and relit SH if not done yet (:meth:`_frame`
-        leaves it for the next frame's shadow tasks to overlap; the run calls this after its last
-        frame). Returns the seconds it took (0 when nothing was pending)."""
-        write, self._pending_write = self._pending_write, None
-        if write is None:
+        """Do the writes left pending, in the order they were left: the last processed frame's probes
+        and shadowed and relit SH (:meth:`_frame` leaves them for the next frame's shadow tasks to
+        overlap; the run calls this after its last frame), and what the run queued after them.
+        Returns the seconds it took (0 when nothing was pending)."""
+        writes, self._pending_writes = self._pending_writes, []
+        if not writes:
             return 0.0
         t = time.perf_counter()
         jit_warmup.wait_for("author")  # cold cache: the warm-up process compiles the authoring's kernels
-        write()
+        for write in writes:
+            write()
         return self.clock.add("write", t) - t
 
     def _shadow_pass(self, sets: dict, lights: list[ShotLight], extra=(), meanwhile=None,
@@ -978,26 +986,6 @@ class ShotProcessor:
         """True when no prim processed per frame has anything time-sampled."""
         return all(p in self._constant for p in self._moving_paths)
 
-    def _role_paths(self) -> tuple[list, list]:
-        """``(the prims processed per frame, the relit avatars and objects)``, in the order of the
-        roles; computed once per list of roles (the roles are frozen; a shot has thousands of
-        bricks, and these are asked for several times a frame)."""
-        got = self.__dict__.get("_role_lists")
-        if got is None or got[0] is not self.roles:
-            moving = [r for r in self.roles if r.per_frame]
-            got = self._role_lists = (self.roles, [r.path for r in moving],
-                                      [r.path for r in moving if r.relight and r.role in ("avatar", "object")])
-        return got[1], got[2]
-
-    @property
-    def _moving_paths(self) -> list:
-        """The prims processed per frame (``ResolvedRole.per_frame``), in the order of the roles."""
-        return list(self._role_paths()[0])
-
-    @property
-    def _relit_paths(self) -> list:
-        """The relit avatars and objects, in the order of the roles."""
-        return list(self._role_paths()[1])
 
     def _relight_jobs(self, dyn: dict, sets: dict, frame: float, lights=()) -> list:
         """``[(path, relight_factors keyword arguments without visibility)]`` of every relit avatar
@@ -1283,10 +1271,9 @@ class ShotProcessor:
             shadowed = np.zeros(len(paths), bool)
             shadowed[owner[(t_static_u < 1) | (sky_u < 1)]] = True  # the prims whose SH is attenuated
             cand = np.flatnonzero([touched[k] or not author.is_clean(p) for k, p in enumerate(paths)])
-            counts = offsets[cand + 1] - offsets[cand]
-            sub = np.concatenate([[0], np.cumsum(counts)])
             every = len(cand) == len(paths)  # (then the rows are the block's, in order: no gathers)
-            rows = None if every else np.repeat(offsets[cand] - sub[:-1], counts) + np.arange(sub[-1])
+            rows, sub = (None, offsets) if every else segment_rows(offsets, cand)
+            counts = np.diff(sub)
             # (the touched receivers lie in the candidates' rows, which increase)
             at = u if every else np.searchsorted(rows, u)
             tp = np.ones(sub[-1], np.float32)
@@ -1666,13 +1653,10 @@ class ShotProcessor:
                         self._frame(f, author, probe_dir)
                     self._save_shot_cache()
                     if not written_lights and self.lights_used and self.lights_used[0].source == "estimated":
-                        write = partial(self._write_lights, out.stage,
-                                        [lt for lt in self.lights_used if lt.source == "estimated"], probe_dir)
-                        pending = self._pending_write
-                        if pending is None:
-                            write()
-                        else:  # after the frame's probes and SH (the output's prims in the order of old)
-                            self._pending_write = lambda pending=pending, write=write: (pending(), write())
+                        # (after the frame's pending probes and SH: /UsdGs/Probes before /UsdGs/Lights)
+                        self._pending_writes.append(partial(
+                            self._write_lights, out.stage,
+                            [lt for lt in self.lights_used if lt.source == "estimated"], probe_dir))
                         written_lights = True
                     if bar:
                         bar.update(1)

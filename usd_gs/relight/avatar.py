@@ -180,13 +180,11 @@ def probe_transfer(g, everything, mask: np.ndarray, centre, normals: np.ndarray,
     probe = fit_probe(full, degree=opts.probe_degree, center=centre)
     q, t_max = opts.relight_q, opts.relight_t_max
     zh = appearance is not None and "zh_color" in appearance
-    if zh:
+    if blend is None or blend.k == 1 or zh:
         tp = probe if opts.transfer_degree == opts.probe_degree else fit_probe(full, degree=opts.transfer_degree,
                                                                               center=centre)
-        return ProbeTransfer(probe, tp, None)
-    if blend is None or blend.k == 1:
-        tp = probe if opts.transfer_degree == opts.probe_degree else fit_probe(full, degree=opts.transfer_degree,
-                                                                              center=centre)
+        if zh:
+            return ProbeTransfer(probe, tp, None)
         scale = relight_scale(normals, tp, q=q, t_max=t_max)
     else:
         tex = cube_texels(lin.astype(np.float32), alpha, depth, centre)

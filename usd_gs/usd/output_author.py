@@ -151,6 +151,15 @@ def half_of(value: np.ndarray) -> np.ndarray:
     return half_bits(value, threads=False)
 
 
+def segment_rows(offsets: np.ndarray, segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, sub)``: the rows of the segments ``segments`` (increasing indices; segment ``i`` is
+    rows ``offsets[i]:offsets[i + 1]``) in increasing order, and where each segment starts among
+    them (``sub`` (len(segments) + 1,) from 0)."""
+    counts = offsets[segments + 1] - offsets[segments]
+    sub = np.concatenate([[0], np.cumsum(counts)])
+    return np.repeat(offsets[segments] - sub[:-1], counts) + np.arange(sub[-1]), sub
+
+
 class SegmentHalves:
     """The float16 values (:func:`half_of`) of a float32 block that does not change, e.g. a shot's
     static SH (M, K, 3), whose rows form consecutive segments (``offsets`` (P + 1,) from 0 to M: a
@@ -173,10 +182,7 @@ class SegmentHalves:
             return None
         new = segments[~self._done[segments]]
         if new.size:
-            starts, ends = self.offsets[new], self.offsets[new + 1]
-            counts = ends - starts
-            sub = np.concatenate([[0], np.cumsum(counts)])
-            fresh = np.repeat(starts - sub[:-1], counts) + np.arange(sub[-1])
+            fresh, _ = segment_rows(self.offsets, new)
             part = self.block[fresh]
             if part.size and not within_half(part):
                 self._usable = False
