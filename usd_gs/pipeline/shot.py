@@ -760,10 +760,19 @@ class ShotProcessor:
                 tasks.append(task)
                 steps.append(("self", q))
         block = self._scene_block
-        if block is not None and block.count:
-            atlas = self._static_atlas(light) if light.kind == "point" else self._static_sun_atlas(light)
-            tasks.append(self._scene_shadow_task(block, drecv, light, atlas))
-            steps.append(("scene", None))
+        if block is not None and block.count and drecv.ranges:
+            if light.kind == "point":  # an atlas per moving receiver prim: each packs what its own reach
+                # needs; the prims with nothing time-sampled share one (each looks up once per light)
+                held = [p for p in drecv.ranges if p in self._constant]
+                groups = [[p] for p in drecv.ranges if p not in self._constant] + ([held] if held else [])
+                for group in groups:
+                    key = group[0] if group is not held else None
+                    tasks.append(self._scene_shadow_task(block, drecv, light, self._static_atlas(light, key), group))
+                    steps.append(("scene", key))
+            else:
+                tasks.append(self._scene_shadow_task(block, drecv, light, self._static_sun_atlas(light),
+                                                     list(drecv.ranges)))
+                steps.append(("scene", None))
 
         def apply(results):
             hits = []  # the static receivers each caster shadows, with their transmittance
@@ -835,16 +844,18 @@ class ShotProcessor:
             res_d = shared_transmittance(g, [part_d], light, cfg, movers.packed(q))[0]
         return res_s, _spread_samples(res_d, dhit, maps, drecv)
 
-    def _scene_shadow_task(self, block, drecv: Receivers, light, atlas):
-        """The task giving ``(idx, T)`` of the moving receivers in the static scene's shot-long
-        ``atlas`` (``_scene_task``), or None. A receiver prim with nothing time-sampled takes its
-        values once per light and holds them (their values do not depend on what else is looked up)."""
+    def _scene_shadow_task(self, block, drecv: Receivers, light, atlas, prims: list):
+        """The task giving ``(idx, T)`` of the moving receivers of ``prims`` (paths in ``drecv``) in
+        the static scene's shot-long ``atlas`` (``_scene_task``), or None. A receiver prim with
+        nothing time-sampled takes its values once per light and holds them (their values do not
+        depend on what else is looked up)."""
         cfg, bias = self._centre_cfg, self.opts.contact_bias / self.mpu
-        held = [p for p in drecv.ranges if p in self._constant]
+        held = [p for p in prims if p in self._constant]
+        rows = [np.arange(*drecv.ranges[p]) for p in prims if p not in self._constant]
         if not held:
-            return partial(_scene_task, block, drecv, light, cfg, bias, atlas)
+            whole = len(prims) == len(drecv.ranges)
+            return partial(_scene_task, block, drecv, light, cfg, bias, atlas, None if whole else np.concatenate(rows))
         key = _light_key(light)
-        rows = [np.arange(*drecv.ranges[p]) for p in drecv.ranges if p not in self._constant]
         moving = np.concatenate(rows) if rows else np.zeros(0, np.int64)
 
         def task():
@@ -1398,10 +1409,13 @@ class ShotProcessor:
             buf.sh[a:b, : g.sh.shape[1]] = g.sh[:, :k]
         return buf, spans
 
-    def _static_atlas(self, light):
+    def _static_atlas(self, light, prim: str | None):
         """The static casters' shot-long DGSM for a point light (``usd_gs.shadows.static_scene``),
-        without the light's own emitter Gaussians (:meth:`_emitter_keep`)."""
-        key = ("atlas", tuple(np.round(light.position, 6)))
+        without the light's own emitter Gaussians (:meth:`_emitter_keep`), for the lookups on
+        moving receiver ``prim`` (None: for the receivers with nothing time-sampled): one per prim,
+        bounded by that prim's reach (the same bits as one atlas for every prim; avatars apart pack
+        only the occluders near each)."""
+        key = ("atlas", tuple(np.round(light.position, 6)), prim)
         if key not in self._scene_packs:
             if "block extents" not in self._scene_packs:
                 self._scene_packs["block extents"] = BlockExtents(self._scene_block, self._centre_cfg.k_sigma)
