@@ -50,3 +50,119 @@ def test_rasteriser_output_does_not_depend_on_the_thread_count():
     for x, y in zip(a, b, strict=True):
         assert np.array_equal(x, y)
     assert a[1].min() < 0.9  # something was drawn
+
+
+def test_a_task_takes_its_share_of_the_threads(monkeypatch):
+    """Inside tasks run side by side (``as_task``) a kernel gets numba's thread count over the tasks
+    running at its call (at least 1): the count of three running tasks, then of the last one alone."""
+    import threading
+
+    from numba_kernels.thread_chunks import as_task, thread_count
+
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 16)
+    assert thread_count() == 16  # outside any task: numba's count
+    started, recorded, others_done = threading.Barrier(3), threading.Barrier(3), threading.Event()
+    seen: dict = {}
+
+    def work(name):
+        started.wait()
+        seen[name] = [thread_count()]
+        recorded.wait()  # (none finishes before all three counted)
+        if name == "last":
+            others_done.wait()
+            seen[name].append(thread_count())
+        return name
+
+    tasks = {name: as_task(lambda name=name: work(name)) for name in ("a", "b", "last")}
+    threads = {name: threading.Thread(target=t) for name, t in tasks.items()}
+    for t in threads.values():
+        t.start()
+    threads["a"].join()
+    threads["b"].join()
+    others_done.set()
+    threads["last"].join()
+    assert seen == {"a": [5], "b": [5], "last": [5, 16]}  # 16 // 3, then 16 // 1
+    assert thread_count() == 16
+    assert tasks["a"].__wrapped__ is not None
+
+
+def test_a_task_beside_another_runs_its_ranges_in_its_own_thread(monkeypatch):
+    """Two threads and two tasks running: each task's share is one thread, so ``run_chunks`` runs
+    every range in the task's own thread (no hand-off through the pool)."""
+    import threading
+
+    from numba_kernels.thread_chunks import as_task
+
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
+    both = threading.Barrier(2)
+    calls: dict = {}
+
+    def kernel(lo, hi, name):
+        calls.setdefault(name, []).append((lo, hi, threading.get_ident()))
+
+    def work(name):
+        both.wait()
+        run_chunks(kernel, 1000, name)
+        both.wait()  # (neither finishes before the other's call ran)
+        return threading.get_ident()
+
+    idents = {}
+    threads = [threading.Thread(target=lambda n=n: idents.__setitem__(n, as_task(lambda: work(n))())) for n in "xy"]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    step = [(lo, lo + 125) for lo in range(0, 1000, 125)]  # 2 threads x 4 ranges each
+    assert {n: sorted((lo, hi) for lo, hi, _ in c) for n, c in calls.items()} == {"x": step, "y": step}
+    assert all(ident == idents[n] for n in "xy" for _, _, ident in calls[n])
+
+
+def test_when_a_task_ends_a_helper_joins_the_call_still_running(monkeypatch):
+    """Task a's call starts while task b runs (share one: no helper); b ends with no task waiting,
+    and a helper from the pool takes some of a's ranges while a's own thread is busy with its first."""
+    import threading
+
+    from numba_kernels.thread_chunks import as_task
+
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
+    both, a_open, helped = threading.Barrier(2), threading.Event(), threading.Event()
+    owner, ran = {}, []
+
+    def kernel(lo, hi):
+        ran.append((lo, threading.get_ident()))
+        if threading.get_ident() != owner["a"]:
+            helped.set()
+        if lo == 0:
+            a_open.set()
+            assert helped.wait(10), "no helper joined"
+
+    def a():
+        owner["a"] = threading.get_ident()
+        both.wait()
+        run_chunks(kernel, 800)
+
+    def b():
+        both.wait()
+        assert a_open.wait(10)
+
+    tasks = [as_task(a), as_task(b)]
+    threads = [threading.Thread(target=t) for t in tasks]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(lo for lo, _ in ran) == list(range(0, 800, 100))  # every range once
+    assert {ident for _, ident in ran} - {owner["a"]}  # some ran in a helper
+
+
+def test_errors_in_a_task_range_reach_the_task(monkeypatch):
+    from numba_kernels.thread_chunks import as_task
+
+    monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
+
+    def kernel(lo, hi):
+        if lo <= 5 < hi:
+            raise ValueError("bad range")
+
+    with pytest.raises(ValueError, match="bad range"):
+        as_task(lambda: run_chunks(kernel, 100))()

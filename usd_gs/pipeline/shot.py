@@ -37,7 +37,7 @@ from numba_kernels.capsule import within_capsule
 from numba_kernels.cubemap_dirs import cube_face_solid_angles
 from numba_kernels.jit_options import read_only
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
-from numba_kernels.thread_chunks import thread_count
+from numba_kernels.thread_chunks import as_task, thread_count
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.io.atomic import check_writable_folder, remove_stale_temps, temp_tag
@@ -190,8 +190,9 @@ class _MovingCasters:
 
 def run_tasks(tasks: list, meanwhile=None, costs=None, sizes=None) -> list:
     """The results of ``tasks`` (callables without arguments), in their order: in up to
-    ``thread_count()`` threads (the kernels they call run their own chunks in the shared kernel
-    pool, numpy releases the GIL), or one after the other with one thread. ``meanwhile`` (a callable
+    ``thread_count()`` threads (each task's kernels take their share of the threads,
+    ``numba_kernels.thread_chunks.as_task``; numpy releases the GIL), or one after the other with
+    one thread. ``meanwhile`` (a callable
     without arguments, or None) runs on the calling thread while the tasks run (with one thread:
     before them; also when there are no tasks); it must not share state with them. ``costs``
     (None, or one expected duration per task, None where unknown) starts the threads on the
@@ -208,7 +209,7 @@ def run_tasks(tasks: list, meanwhile=None, costs=None, sizes=None) -> list:
 
     order = _start_order(len(tasks), costs, sizes)
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="usdgs-task") as pool:
-        futures = {i: pool.submit(tasks[i]) for i in order}
+        futures = {i: pool.submit(as_task(tasks[i])) for i in order}
         if meanwhile is not None:
             meanwhile()
         return [futures[i].result() for i in range(len(tasks))]
