@@ -107,14 +107,20 @@ def _help_open_calls() -> None:
 
 def as_task(fn):
     """``fn`` (a callable without arguments) as one of several tasks run side by side in threads,
-    made when the task is queued: while it runs it counts among the running tasks and the calls of
+    made when the task is queued (its thread takes the queuing thread's numba thread count, which
+    numba keeps per thread): while it runs it counts among the running tasks and the calls of
     :func:`run_chunks` in it take their share of the threads; when it ends with no task waiting,
     a helper joins the running calls (module doc). The results do not depend on it (each range
     writes disjoint outputs)."""
+    threads = _numba_threads()  # the queuing thread's setting, for the task's thread too
     with _TASKS_LOCK:
         _WAITING[0] += 1
 
     def task():
+        if _numba_threads() != threads:
+            import numba
+
+            numba.set_num_threads(threads)
         with _TASKS_LOCK:
             _WAITING[0] -= 1
             _RUNNING[0] += 1

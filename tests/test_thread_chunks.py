@@ -166,3 +166,23 @@ def test_errors_in_a_task_range_reach_the_task(monkeypatch):
 
     with pytest.raises(ValueError, match="bad range"):
         as_task(lambda: run_chunks(kernel, 100))()
+
+
+def test_a_task_takes_the_numba_thread_count_of_the_thread_that_queued_it():
+    import threading
+
+    from numba_kernels.thread_chunks import as_task
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one CPU thread here: every thread's count is 1")
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        task = as_task(numba.get_num_threads)
+    finally:
+        numba.set_num_threads(before)
+    seen = []
+    t = threading.Thread(target=lambda: seen.append((numba.get_num_threads(), task())))
+    t.start()
+    t.join()
+    assert seen == [(numba.config.NUMBA_NUM_THREADS, 1)]  # a new thread's own count, then the queuer's
