@@ -22,7 +22,7 @@ alternating, and prints each round's ratios to N = 1 and their median.
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py [--frames 1-6] [--counts 1,2,4,8]
         [--table-rounds R]
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_avatar_count.py --tasks --frames 1-4 --counts 1,4
-        [--config FILE]
+        [--config FILE] [--alone]
 """
 
 from __future__ import annotations
@@ -41,12 +41,13 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 
 
-def make_shot(demo_data: Path, n: int, folder: Path) -> Path:
-    """A shot of the demo room and ``n`` bikers (module docstring); returns its root layer."""
+def make_shot(demo_data: Path, n: int, folder: Path, only: int | None = None) -> Path:
+    """A shot of the demo room and ``n`` bikers (module docstring), or with ``only`` the biker at
+    that place of the ``n``-ring alone; returns its root layer."""
     from pxr import Gf, Sdf, Usd, UsdGeom
 
     src = Sdf.Layer.FindOrOpen(str(demo_data.parent / "demo.usda"))
-    path = folder / f"bikers_{n}.usda"
+    path = folder / (f"bikers_{n}.usda" if only is None else f"biker_{only}_of_{n}.usda")
     stage = Usd.Stage.CreateNew(str(path))
     for key in ("upAxis", "metersPerUnit", "timeCodesPerSecond", "startTimeCode", "endTimeCode", "framesPerSecond"):
         if src.pseudoRoot.HasInfo(key):
@@ -54,7 +55,7 @@ def make_shot(demo_data: Path, n: int, folder: Path) -> Path:
     stage.GetRootLayer().subLayerPaths.append(str(demo_data / "room.usdc"))
     world = UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(world.GetPrim())
-    for i in range(n):
+    for i in range(n) if only is None else [only]:
         ring = UsdGeom.Xform.Define(stage, f"/World/Ring{i}")
         a = 2.0 * math.pi * i / max(n, 1)
         offset = (0.0, 0.0, 0.0) if i == 0 else (1.3 * math.cos(a) - 1.3, 0.0, 1.3 * math.sin(a))
@@ -174,6 +175,9 @@ def main() -> None:
     ap.add_argument("--tasks", action="store_true",
                     help="instead: each shadow-pass task timed on one thread, one after the other (s/frame over "
                          "frames 2..), per avatar count")
+    ap.add_argument("--alone", action="store_true",
+                    help="with --tasks: also each biker of the ring alone, at its place, and the sum of their "
+                         "times (what the avatars cost without each other)")
     a = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_avatars_"))
     counts = [int(c) for c in a.counts.split(",")]
@@ -183,6 +187,16 @@ def main() -> None:
             t = run_tasks_serial(make_shot(Path(a.demo_data), n, work), work / f"bikers_{n}.tasks.lit.usdc", a.frames,
                                  a.config)
             print(f"{n} avatar(s): " + ", ".join(f"{k} {v:.3f}" for k, v in sorted(t.items(), key=lambda kv: -kv[1])))
+            if a.alone and n > 1:
+                total: dict = {}
+                for i in range(n):
+                    t1 = run_tasks_serial(make_shot(Path(a.demo_data), n, work, only=i),
+                                          work / f"biker_{i}_of_{n}.tasks.lit.usdc", a.frames, a.config)
+                    print(f"  biker {i} of {n} alone: " + ", ".join(f"{k} {v:.3f}" for k, v in sorted(t1.items())))
+                    for k, v in t1.items():
+                        total[k] = total.get(k, 0.0) + v
+                print(f"  the {n} alone, summed: " + ", ".join(
+                    f"{k} {v:.3f} (together {t.get(k, 0.0) / v:.2f}x)" for k, v in sorted(total.items()) if v > 0))
         return
     shots = {n: make_shot(Path(a.demo_data), n, work) for n in counts}
     ratios = {n: [] for n in counts}
