@@ -51,6 +51,10 @@ def test_threads_give_the_one_thread_output(tmp_path):
     finally:
         numba.set_num_threads(before)
     assert stage_differences(tmp_path / "one.usdc", tmp_path / "two.usdc", [1, 2, 3]) == []
+    # every task ended and every kernel call inside them closed (numba_kernels.thread_chunks.as_task)
+    from numba_kernels import thread_chunks
+
+    assert (thread_chunks._RUNNING, thread_chunks._WAITING, thread_chunks._OPEN) == ([0], [0], [])
 
 
 def test_avatar_shadows_at_samples_spread_to_every_gaussian():
