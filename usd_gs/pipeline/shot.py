@@ -762,18 +762,17 @@ class ShotProcessor:
                 steps.append(("self", q))
         block = self._scene_block
         if block is not None and block.count and drecv.ranges:
-            if light.kind == "point":  # an atlas per moving receiver prim: each packs what its own reach
-                # needs; the prims with nothing time-sampled share one (each looks up once per light)
+            # (atlas key, its prims): for a point light an atlas per moving receiver prim, each packing
+            # what its own reach needs, the prims with nothing time-sampled sharing one (each looks up
+            # once per light); for a directional light one lattice atlas
+            groups = [(None, list(drecv.ranges))]
+            if light.kind == "point":
                 held = [p for p in drecv.ranges if p in self._constant]
-                groups = [[p] for p in drecv.ranges if p not in self._constant] + ([held] if held else [])
-                for group in groups:
-                    key = group[0] if group is not held else None
-                    tasks.append(self._scene_shadow_task(block, drecv, light, self._static_atlas(light, key), group))
-                    steps.append(("scene", key))
-            else:
-                tasks.append(self._scene_shadow_task(block, drecv, light, self._static_sun_atlas(light),
-                                                     list(drecv.ranges)))
-                steps.append(("scene", None))
+                groups = [(p, [p]) for p in drecv.ranges if p not in self._constant] + ([(None, held)] if held else [])
+            for key, prims in groups:
+                atlas = self._static_atlas(light, key) if light.kind == "point" else self._static_sun_atlas(light)
+                tasks.append(self._scene_shadow_task(block, drecv, light, atlas, prims))
+                steps.append(("scene", key))
 
         def apply(results):
             hits = []  # the static receivers each caster shadows, with their transmittance
