@@ -267,9 +267,10 @@ def small_cap_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta, tan_theta
 
 @njit(cache=True, fastmath=False)
 def secant_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta):
-    """The earlier builds' ``L``: 1.2 times the largest secant stretch of the octahedral map from
-    ``d`` to the boundary of the cap of radius ``theta`` in 8 directions, capped at
-    ``OCT_LIPSCHITZ`` (``OCT_LIPSCHITZ`` for ``theta = 0``)."""
+    """The secant estimate of ``L`` (module doc): 1.2 times the largest secant stretch of the
+    octahedral map from ``d`` to the boundary of the cap of radius ``theta`` in 8 directions
+    (``e1, e2`` and the diagonals between them), capped at ``OCT_LIPSCHITZ`` (``OCT_LIPSCHITZ``
+    for ``theta = 0``)."""
     if not theta > 0.0:
         return OCT_LIPSCHITZ
     u0, v0 = oct_encode(dx, dy, dz)
