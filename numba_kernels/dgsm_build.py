@@ -564,6 +564,7 @@ def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
         dys = np.empty(npx)
         dzs = np.empty(npx)
         hit = np.zeros(npx, np.bool_)
+        idx = np.empty(npx, np.int64)
         tau = np.zeros((npx, nk))
         diff = np.zeros((npx, nk))
         ne = np.zeros(npx, np.int64)
@@ -578,9 +579,12 @@ def _accumulate_point(g0, g1, light, occ, dir_dep, pdirs, K, t_max, kmin, kmax,
                 if cone_hits(dxs, dys, dzs, npx, cone, o, hit) == 0:  # vectorised, for the whole tile
                     continue
                 p0, p1, p2 = light_offset(occ, o, ox, oy, oz)  # (every ray leaves the light)
-                for a in range(npx):
-                    if not hit[a]:
-                        continue
+                m = 0
+                for a in range(npx):  # the hits' rows, without a branch
+                    idx[m] = a
+                    m += hit[a]
+                for j in range(m):
+                    a = idx[j]
                     npairs[a] += 1
                     ne[a] += _accumulate_one_from(occ, o, p0, p1, p2, dxs[a], dys[a], dzs[a], dir_dep, dt, kmin,
                                                   kmax, bin_skip, tau, diff, a, 0.0, 0.0)[0]
