@@ -212,7 +212,7 @@ def _footprint(light, mu, cov, i, w, k_sigma):
     lip = small_cap_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta, tan_theta)
     rp = theta * lip * 0.5 * w + 1.0
     if not (lip > 0.0 and 2.0 * rp < w):  # (a near-global footprint: the global list stays the secant's)
-        rp = theta * secant_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta) * 0.5 * w + 1.0
+        rp = theta * secant_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta, u0, v0) * 0.5 * w + 1.0
     return False, fx, fy, rp, ct
 
 
@@ -266,14 +266,13 @@ def small_cap_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta, tan_theta
 
 
 @njit(cache=True, fastmath=False)
-def secant_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta):
+def secant_stretch(dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, theta, u0, v0):
     """The secant estimate of ``L`` (module doc): 1.2 times the largest secant stretch of the
     octahedral map from ``d`` to the boundary of the cap of radius ``theta`` in 8 directions
     (``e1, e2`` and the diagonals between them), capped at ``OCT_LIPSCHITZ`` (``OCT_LIPSCHITZ``
-    for ``theta = 0``)."""
+    for ``theta = 0``); ``(u0, v0)``: ``oct_encode(d)``, which the caller has."""
     if not theta > 0.0:
         return OCT_LIPSCHITZ
-    u0, v0 = oct_encode(dx, dy, dz)
     ct = math.cos(theta)
     st = math.sin(theta)
     l2 = 0.0

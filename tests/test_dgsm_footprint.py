@@ -71,7 +71,9 @@ def test_small_cap_bound_is_never_below_the_secant_estimate():
     theta = np.exp(rng.uniform(np.log(1e-5), np.log(0.5), len(d)))
     bound = np.array([db.small_cap_stretch(*x, *a, *b, t, math.tan(t))
                       for x, a, b, t in zip(d, e1, e2, theta, strict=True)])
-    secant = np.array([db.secant_stretch(*x, *a, *b, t) for x, a, b, t in zip(d, e1, e2, theta, strict=True)])
+    uv = oc.encode(d)
+    secant = np.array([db.secant_stretch(*x, *a, *b, t, *q)
+                       for x, a, b, t, q in zip(d, e1, e2, theta, uv, strict=True)])
     centre = np.array([db.oct_stretch(*x, *a, *b) for x, a, b in zip(d, e1, e2, strict=True)])
     ref = np.array([_secant_reference(x, a, b, t) for x, a, b, t in zip(d[:4000], e1[:4000], e2[:4000],
                                                                             theta[:4000], strict=True)])
