@@ -306,6 +306,11 @@ def hash_normals(seed, rid, s):
 def _footprints_q(i0_, i1_, pos, quat, scales, idx, mode, n, seed, out):
     for r in range(i0_, i1_):
         g = idx[r]
+        if mode == 0:  # the centre: no rotation needed (mu + R 0 = mu)
+            out[r, 0] = pos[g, 0]
+            out[r, 1] = pos[g, 1]
+            out[r, 2] = pos[g, 2]
+            continue
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_rotation(
             float(quat[g, 0]), float(quat[g, 1]), float(quat[g, 2]), float(quat[g, 3]))
         for s in range(n):

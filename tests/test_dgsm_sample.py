@@ -145,6 +145,12 @@ def test_fast_footprints_match_generic_path_and_hash_normals_are_normal():
     p7, w7 = footprint_points_gaussians(pos, q, s, idx, "stencil7", 7)
     ref = footprint_points(pos[idx], rot, s[idx], np.broadcast_to(STENCIL7, (3, 7, 3)))
     np.testing.assert_allclose(p7, ref, atol=1e-6)
+    # the centre sample is the Gaussian's centre, widened to float64 (zero quaternions included)
+    q0 = q.copy()
+    q0[17] = 0.0
+    pc, wc = footprint_points_gaussians(pos, q0, s, idx, "center", 1)
+    np.testing.assert_array_equal(pc, pos[idx].astype(np.float64))
+    np.testing.assert_array_equal(wc, [1.0])
     a, _ = footprint_points_gaussians(pos, q, s, np.arange(n), "mc", 64, seed=1)
     b, _ = footprint_points_gaussians(pos, q, s, np.arange(n), "mc", 64, seed=1)
     c, _ = footprint_points_gaussians(pos, q, s, np.arange(n), "mc", 64, seed=2)

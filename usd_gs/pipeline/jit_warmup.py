@@ -42,12 +42,13 @@ from usd_gs.gaussians import GaussianSet, alpha_weighted_centroid
 from usd_gs.pipeline.options import ProcessOptions
 from usd_gs.point_blocks import PointBlocks, block_starts
 from usd_gs.relight.avatar import relight_factors
+from usd_gs.relight.direct import direct_irradiance
 from usd_gs.relight.far_field import FarLayers
 from usd_gs.relight.parallax import ProbeBlend
 from usd_gs.relight.probe_merge import MergedPrim
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh, shade_sh_rows
-from usd_gs.shadows.shot import Receivers, prim_spheres, receiver_points, shared_transmittance
+from usd_gs.shadows.shot import Receivers, prim_spheres, prims_in_shadow, receiver_points, shared_transmittance
 from usd_gs.shadows.static_scene import StaticSceneAtlas
 from usd_gs.synthetic import random_gaussians
 from usd_gs.usd.lux import ShotLight
@@ -202,6 +203,7 @@ def warm_up(groups=GROUPS) -> None:
         scale, probe = relight_factors(avatar, everything, mask, centre, normals,
                                        ProbeBlend.build(avatar.positions, opts.probe_points), opts)
         scale_sh(avatar.sh, opts.relight_gamma * scale)
+        direct_irradiance(light, avatar.positions, normals)  # each light's direct term (a point light)
         probe.to_latlong(*opts.probe_texture)
         MergedPrim.of(avatar, opts.probe_merge_cell)  # a moving prim merged for the other prims' probes
         # the far field's ball tests over the static part (FarLayers.clear, block by block)
@@ -228,7 +230,8 @@ def warm_up(groups=GROUPS) -> None:
                                      np.zeros(4, np.int64), np.zeros(4, np.int64))
         centre_cfg = replace(opts.dgsm, sampling="center")
         recv = Receivers.build([("/scene", scene)])
-        prim_spheres(recv, opts.dgsm.k_sigma)  # the static receivers' bounding spheres, once per shot
+        spheres = prim_spheres(recv, opts.dgsm.k_sigma)  # the static receivers' bounding spheres, once per shot
+        prims_in_shadow(spheres, avatar, light, opts.dgsm.k_sigma)  # (float64 centres: the beam kernel's own types)
         drecv = Receivers.build([("/avatar", avatar)])
         part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
         keep = ~within_capsule(scene.positions, light.position, light.position, opts.emitter_radius)  # _emitter_keep

@@ -21,7 +21,8 @@ colour of a white Lambertian surface under a uniform environment of radiance 1):
   (``usd_gs.relight.avatar``): its light reaches a Gaussian through the probe, occluded by the
   scene as the probe sees it.
 
-Everything is vectorised over receivers (float64, no loop over Gaussians); lights are few.
+Everything is vectorised over receivers (float64, no loop over Gaussians; the point form in one
+threaded pass, ``numba_kernels.point_irradiance``); lights are few.
 """
 
 from __future__ import annotations
@@ -63,11 +64,16 @@ def _area_samples(light) -> tuple[np.ndarray, float]:
 def direct_irradiance(light, positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(N, 3) float64 unshadowed direct irradiance of ``light`` (a ``usd_gs.usd.lux.ShotLight``) at
     ``positions`` (N, 3) metres about unit ``normals`` (N, 3) (module docstring); zeros for a dome."""
+    form = light.form
+    count = np.asarray(positions).reshape(-1, 3).shape[0]
+    if form == "dome" or count == 0:
+        return np.zeros((count, 3))
+    if form not in ("distant", "rect", "disk") and not (form == "sphere" and light.radius > 0):  # a point
+        from numba_kernels.point_irradiance import point_irradiance
+
+        return point_irradiance(positions, normals, light.position, light.radiant_intensity())
     x = np.asarray(positions, np.float64).reshape(-1, 3)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
-    form = light.form
-    if form == "dome" or x.shape[0] == 0:
-        return np.zeros((x.shape[0], 3))
     if form == "distant":
         s = -np.asarray(light.direction, np.float64)
         s = s / np.linalg.norm(s)
@@ -95,10 +101,8 @@ def direct_irradiance(light, positions: np.ndarray, normals: np.ndarray) -> np.n
     r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
     r = np.sqrt(r2)
     cos = np.einsum("ij,ij->i", n, d) / r
-    if form == "sphere" and light.radius > 0:
-        sin_sigma = light.radius / np.maximum(r, light.radius)
-        return _sphere(cos, sin_sigma)[:, None] * np.asarray(light.radiance(), np.float64)[None, :]
-    return (np.maximum(cos, 0.0) / r2)[:, None] * np.asarray(light.radiant_intensity(), np.float64)[None, :]
+    sin_sigma = light.radius / np.maximum(r, light.radius)
+    return _sphere(cos, sin_sigma)[:, None] * np.asarray(light.radiance(), np.float64)[None, :]
 
 
 def _sphere(cos: np.ndarray, sin_sigma: np.ndarray) -> np.ndarray:

@@ -63,34 +63,29 @@ def _bounding_sphere(ext: np.ndarray) -> tuple[np.ndarray, float]:
     return 0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0]))
 
 
-def _beam(centres: np.ndarray, c: np.ndarray, r: float, light) -> tuple[np.ndarray, np.ndarray]:
+def _beam(centres: np.ndarray, c: np.ndarray, r: float, light, rows: np.ndarray | None = None
+          ) -> tuple[np.ndarray, np.ndarray]:
     """Geometry of points against the light's beam through the sphere (c, r): a cone from a
     point light (half-angle asin(r / |c - light|)), a cylinder along a directional light.
 
     Returns ``(gap, depth)`` per point: ``gap`` the distance from the point to the beam
     (<= 0 inside), ``depth`` how far past the sphere's near side the point lies along the
     light (>= 0 beyond the near side). A light inside the sphere gives gap -inf (everything
-    is in its beam)."""
-    x = np.asarray(centres, np.float64)
+    is in its beam). ``rows``: the points ``centres[rows]`` only (no gathered copy is made);
+    None: every point. One threaded pass (``numba_kernels.beam.beam_gap_depth``)."""
+    from numba_kernels.beam import beam_gap_depth
+
+    c = np.asarray(c, np.float64)
     if light.kind == "directional":
         d = np.asarray(light.direction, np.float64)
-        d = d / np.linalg.norm(d)
-        v = x - c
-        along = v @ d
-        perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - along * along, 0.0))
-        return perp - r, along + r
+        return beam_gap_depth(centres, rows, False, c, d / np.linalg.norm(d), r)
     lp = np.asarray(light.position, np.float64)
     dc = float(np.linalg.norm(c - lp))
-    v = x - lp
-    dist = np.sqrt(np.einsum("ij,ij->i", v, v))  # (faster than np.linalg.norm on (N, 3))
     if dc <= r:
-        return np.full(x.shape[0], -np.inf), dist
-    along = v @ ((c - lp) / dc)
-    perp = np.sqrt(np.maximum(dist * dist - along * along, 0.0))
+        gap, dist = beam_gap_depth(centres, rows, True, lp, np.zeros(3), 0.0, 0.0, 0.0, 1.0)
+        return np.full(gap.shape[0], -np.inf), dist
     sin_h = r / dc
-    cos_h = np.sqrt(1.0 - sin_h * sin_h)
-    gap = np.where(along * cos_h + perp * sin_h < 0.0, dist, perp * cos_h - along * sin_h)
-    return gap, dist - (dc - r)
+    return beam_gap_depth(centres, rows, True, lp, (c - lp) / dc, r, dc, sin_h, np.sqrt(1.0 - sin_h * sin_h))
 
 
 def occluder_sphere(occluders: GaussianSet, k_sigma: float = 3.0) -> tuple[np.ndarray, float]:
@@ -100,11 +95,12 @@ def occluder_sphere(occluders: GaussianSet, k_sigma: float = 3.0) -> tuple[np.nd
 
 
 def shadow_cone_indices(occluders: GaussianSet, positions: np.ndarray, light, k_sigma: float = 3.0,
-                        sphere=None) -> np.ndarray:
-    """Receivers (indices into ``positions`` (N, 3)) that ``occluders`` can shadow from ``light``:
-    inside the beam through the occluders' bounding sphere and not before its near side."""
+                        sphere=None, rows: np.ndarray | None = None) -> np.ndarray:
+    """Receivers (indices into ``positions`` (N, 3), or into ``rows`` when given: the points
+    ``positions[rows]``) that ``occluders`` can shadow from ``light``: inside the beam through the
+    occluders' bounding sphere and not before its near side."""
     c, r = sphere if sphere is not None else occluder_sphere(occluders, k_sigma)
-    gap, depth = _beam(positions, c, r * (1.0 + 1e-6) + 1e-9, light)
+    gap, depth = _beam(positions, c, r * (1.0 + 1e-6) + 1e-9, light, rows)
     return np.flatnonzero((gap <= 0.0) & (depth >= 0.0))
 
 
@@ -158,24 +154,23 @@ def receiver_points(occluders: GaussianSet, receivers: Receivers, light, cfg: DG
         cand = cand[(cand < a) | (cand >= b)]
     if cand.size == 0:
         return None
-    pos = g.positions[cand]
     if roi == "all" or not cfg.use_roi:
         idx = cand
     elif roi == "box":
-        idx = cand[roi_indices(occluders, pos, cfg)]
+        idx = cand[roi_indices(occluders, g.positions[cand], cfg)]
     else:
-        idx = cand[shadow_cone_indices(occluders, pos, light, cfg.k_sigma, sphere)]
+        idx = cand[shadow_cone_indices(occluders, g.positions, light, cfg.k_sigma, sphere, rows=cand)]
     if idx.size == 0:
         return None
     pts, w = footprint_samples(g, idx, cfg)
     if bias > 0:
         if light.kind == "directional":
             toward = -np.asarray(light.direction, np.float64)
-            toward = np.broadcast_to(toward / np.linalg.norm(toward), pts.shape)
+            pts = pts + bias * (toward / np.linalg.norm(toward))
         else:
-            toward = np.asarray(light.position, np.float64) - pts
-            toward = toward / np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-12)
-        pts = pts + bias * toward
+            from numba_kernels.beam import offset_toward_point
+
+            pts = offset_toward_point(pts, light.position, bias)
     return idx, pts, w
 
 
