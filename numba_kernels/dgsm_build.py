@@ -121,11 +121,28 @@ def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk):
         kk[m, 1] = min(k0 + 1, K - 1)
 
 
+@njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
+def _far_distance2(light, pts):
+    best = 0.0
+    for m in range(pts.shape[0]):
+        dx = pts[m, 0] - light[0]
+        dy = pts[m, 1] - light[1]
+        dz = pts[m, 2] - light[2]
+        d2 = dx * dx + dy * dy + dz * dz  # (numpy's order for a row's three terms)
+        if d2 > best or d2 != d2:  # (a NaN wins, as numpy's max gives it)
+            best = d2
+    return best
+
+
 def far_distance(light, pts) -> float:
-    """Largest distance (m) from ``light`` to ``pts``."""
+    """Largest distance (m) from ``light`` (3,) to ``pts`` (M, 3), as ``sqrt(max(sum((pts - light)^2,
+    axis=1)))`` in float64 (one pass, no temporaries)."""
     if len(pts) == 0:
         return 0.0
-    return float(np.sqrt(np.max(np.sum((pts - light) ** 2, axis=1))))
+    p = np.asarray(pts)
+    if p.dtype != np.float64 or not p.flags.c_contiguous or p.ndim != 2 or p.shape[1] != 3:
+        p = np.ascontiguousarray(p, np.float64).reshape(-1, 3)
+    return float(np.sqrt(_far_distance2(np.asarray(light, np.float64).reshape(3), p)))
 
 
 def t_max_for(t_far: float, K: int) -> float:
@@ -375,6 +392,8 @@ def _bin_tiles_chunked(fxs, fys, rps, is_glob, w, tile_active):
 
 def bin_tiles(light, mu, cov6, w: int, k_sigma: float, tile_active):
     """Light-space culling: ``(tile_start (T+1,), tile_items, global_items, cone (N, 4))``.
+    ``mu`` (N, >= 3) float64 C-contiguous: the occluder centres in its first three columns (the
+    packed occluders ``occ`` themselves will do, without a copy).
 
     CSR lists of occluder ids per 8x8 tile (flat tile id ``ti * (W/8) + tj``; only tiles with
     ``tile_active`` get entries), the ids every pixel must gather, and each occluder's
@@ -691,8 +710,8 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
             pi, pj = pixels // width, pixels % width
             active = np.zeros(wt * wt, np.bool_)
             active[(pi // TILE) * wt + pj // TILE] = True
-            start, items, glob, cone = bin_tiles(light, np.ascontiguousarray(occ[:, :3]),
-                                                 np.ascontiguousarray(cov6, dtype=np.float64), width, k_sigma, active)
+            start, items, glob, cone = bin_tiles(light, occ, np.ascontiguousarray(cov6, dtype=np.float64), width,
+                                                 k_sigma, active)
         else:
             start = np.zeros(1, np.int64)
             items = np.zeros(0, np.int64)

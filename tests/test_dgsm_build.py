@@ -150,3 +150,32 @@ def test_bad_input_rejected():
         build_point(LIGHT, occ, dd, cov6, bad, 16, 8)
     with pytest.raises(ValueError, match="multiple of 8"):
         build_point(LIGHT, occ, dd, cov6, pts, 12, 8)
+
+
+def test_far_distance_is_numpys_formula_bit_for_bit():
+    from numba_kernels.dgsm_build import far_distance
+
+    rng = np.random.default_rng(21)
+    for n, s in ((1, 1.0), (7, 1e-3), (100_000, 40.0)):
+        pts = rng.normal(size=(n, 3)) * s
+        assert far_distance(LIGHT, pts) == float(np.sqrt(np.max(np.sum((pts - LIGHT) ** 2, axis=1))))
+    f32 = rng.normal(size=(500, 3)).astype(np.float32)  # other dtypes are widened first
+    assert far_distance(LIGHT, f32) == float(np.sqrt(np.max(np.sum((f32.astype(np.float64) - LIGHT) ** 2, axis=1))))
+    assert far_distance(LIGHT, np.zeros((0, 3))) == 0.0
+    bad = rng.normal(size=(10, 3))
+    bad[4, 1] = np.nan
+    assert math.isnan(far_distance(LIGHT, bad))
+
+
+def test_bin_tiles_reads_the_centres_from_the_packed_occluders():
+    from numba_kernels.dgsm_build import bin_tiles
+
+    rng = np.random.default_rng(22)
+    occ, dd, cov6, _ = _scene(rng, n=400)
+    w = 64
+    active = np.ones((w // TILE) ** 2, np.bool_)
+    got = bin_tiles(LIGHT, occ, cov6, w, 3.0, active)
+    want = bin_tiles(LIGHT, np.ascontiguousarray(occ[:, :3]), cov6, w, 3.0, active)
+    assert len(got[1]) > 400
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)

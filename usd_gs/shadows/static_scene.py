@@ -153,7 +153,7 @@ class StaticSceneAtlas:
         self.builds += 1
         self.occ, self.dir_dep, cov6 = prepare_occluders(sub, self.cfg)
         wt = self.width // dgsm_build.TILE
-        self.tiles = dgsm_build.bin_tiles(self.light, np.ascontiguousarray(self.occ[:, :3]), cov6, self.width,
+        self.tiles = dgsm_build.bin_tiles(self.light, self.occ, cov6, self.width,
                                           self.cfg.k_sigma, np.ones(wt * wt, np.bool_)) if keep.size else None
         self.index = np.full(self.width * self.width, -1, np.int32)
         self._columns = _ColumnStore(self.K)
