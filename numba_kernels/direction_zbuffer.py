@@ -51,6 +51,7 @@ def _splat(dirs, dist, radius, frames, size, max_reach, out):
         if not rho > 0.0:
             continue
         cos_rho = math.cos(rho)
+        tan_rho = math.tan(min(rho, 1.2))
         for f in range(6):
             fw = x * frames[f, 0, 0] + y * frames[f, 0, 1] + z * frames[f, 0, 2]
             if fw < 0.1:  # the disc (at most 0.5 rad) cannot reach this face (texels within 55 deg of its axis)
@@ -62,7 +63,7 @@ def _splat(dirs, dist, radius, frames, size, max_reach, out):
             jc = int(math.floor((u + 1.0) * 0.5 * size))
             ic = int(math.floor((v + 1.0) * 0.5 * size))
             # face-coordinate extent of the disc: at most tan(rho) (1 + u^2 + v^2); a texel spans 2 / size
-            reach = int(math.ceil(math.tan(min(rho, 1.2)) * (1.0 + u * u + v * v) * 0.5 * size))
+            reach = int(math.ceil(tan_rho * (1.0 + u * u + v * v) * 0.5 * size))
             if reach > max_reach:
                 reach = max_reach
             for i in range(max(ic - reach, 0), min(ic + reach + 1, size)):
