@@ -66,10 +66,9 @@ def phases(args, repeat: int) -> dict:
     wt = width // build.TILE
     active = np.zeros(wt * wt, np.bool_)
     active[(pixels // width // build.TILE) * wt + (pixels % width) // build.TILE] = True
-    mu = np.ascontiguousarray(occ[:, :3])
-    n = mu.shape[0]
+    n = occ.shape[0]  # (the centres read from the packed occluders, as build_point gives them)
     fx, fy, rp, glob_, cone = np.empty(n), np.empty(n), np.empty(n), np.zeros(n, np.bool_), np.empty((n, 4))
-    row["footprints"], _ = _best(lambda: run_chunks(build._footprints, n, light, mu, cov6, width, float(k_sigma),
+    row["footprints"], _ = _best(lambda: run_chunks(build._footprints, n, light, occ, cov6, width, float(k_sigma),
                                                     fx, fy, rp, glob_, cone, min_chunk=1024), repeat)
     row["tile lists"], (start, items) = _best(lambda: build._bin_tiles_chunked(fx, fy, rp, glob_, width, active),
                                               repeat)

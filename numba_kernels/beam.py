@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .jit_options import threaded
+from .jit_options import float_rows, threaded
 from .thread_chunks import run_chunks
 
 
@@ -61,10 +61,7 @@ def beam_gap_depth(positions, rows, point: bool, a, u, r: float, dc: float = 0.0
     point light at ``a`` (3,) whose unit axis ``u`` (3,) points at the sphere's centre ``dc`` away,
     ``sin_h`` and ``cos_h`` the half-angle's sine and cosine; else a directional light travelling
     along the unit ``u``, ``a`` the sphere's centre. ``r``: the sphere's radius."""
-    x = np.asarray(positions)
-    if x.dtype not in (np.float32, np.float64):
-        x = x.astype(np.float64)
-    x = np.ascontiguousarray(x).reshape(-1, 3)
+    x = float_rows(positions)
     idx = np.zeros(0, np.int64) if rows is None else np.ascontiguousarray(rows, np.int64).reshape(-1)
     m = idx.shape[0] if rows is not None else x.shape[0]
     gap = np.empty(m)

@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .jit_options import threaded
+from .jit_options import float_rows, threaded
 from .thread_chunks import run_chunks
 
 
@@ -54,17 +54,9 @@ def _within_scaled(i0, i1, p, scales, factor, a, u, length, radius, out):
         out[m] = _distance2(p, m, a, u, length) <= r * r
 
 
-def _points(positions) -> np.ndarray:
-    """Contiguous float32 or float64 (N, 3) positions for the kernels (other dtypes as float64)."""
-    p = np.asarray(positions)
-    if p.dtype not in (np.float32, np.float64):
-        p = p.astype(np.float64)
-    return np.ascontiguousarray(p).reshape(-1, 3)
-
-
 def _segment(positions, a, b):
     """(contiguous float32/float64 positions (N, 3), a (3,) float64, unit axis, length)."""
-    p = _points(positions)
+    p = float_rows(positions)
     a64 = np.asarray(a, np.float64).reshape(3)
     axis = np.asarray(b, np.float64).reshape(3) - a64
     length = float(math.sqrt(float(axis @ axis)))
@@ -139,7 +131,7 @@ def block_spheres(positions, starts) -> tuple[np.ndarray, np.ndarray]:
     int64 increasing block bounds (block b is rows ``starts[b]:starts[b+1]``). Returns ``(centres
     (B, 3), radii (B,))`` float64: the centre of each block's box and half its diagonal (-1 for an
     empty block), an upper bound on every point's distance to the centre."""
-    p = _points(positions)
+    p = float_rows(positions)
     st = np.ascontiguousarray(starts, np.int64).reshape(-1)
     nb = max(st.size - 1, 0)
     centres, radii = np.zeros((nb, 3)), np.full(nb, -1.0)
@@ -153,7 +145,7 @@ def within_ball_blocks(positions, starts, spheres, centre, radius: float) -> np.
     the ball decided at once: a block's own test is made only where its sphere straddles the
     ball's boundary (by more than a relative 1e-9, far above the rounding of the per-point test).
     Rows outside every block (before ``starts[0]`` or from ``starts[-1]`` on) are False."""
-    p, a64 = _points(positions), np.asarray(centre, np.float64).reshape(3)
+    p, a64 = float_rows(positions), np.asarray(centre, np.float64).reshape(3)
     st = np.ascontiguousarray(starts, np.int64).reshape(-1)
     centres, radii = spheres
     out = np.zeros(p.shape[0], np.bool_)

@@ -152,7 +152,7 @@ def build_point_cube(light, occ, dir_dep: int, cov6, roi_points, face: int = 208
         fxs, fys, rps = np.empty(n), np.empty(n), np.empty(n)
         is_glob = np.zeros(n, np.bool_)
         cone = np.empty((n, 4))
-        run_chunks(_footprints, occ.shape[0], light, np.ascontiguousarray(occ[:, :3]),
+        run_chunks(_footprints, occ.shape[0], light, occ,
                    np.ascontiguousarray(cov6, dtype=np.float64), 512, float(k_sigma), fxs, fys, rps, is_glob, cone)
         theta = np.arccos(np.clip(cone[:, 3], -1.0, 1.0))
         ft = F // TILE

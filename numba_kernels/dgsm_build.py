@@ -139,9 +139,7 @@ def far_distance(light, pts) -> float:
     axis=1)))`` in float64 (one pass, no temporaries)."""
     if len(pts) == 0:
         return 0.0
-    p = np.asarray(pts)
-    if p.dtype != np.float64 or not p.flags.c_contiguous or p.ndim != 2 or p.shape[1] != 3:
-        p = np.ascontiguousarray(p, np.float64).reshape(-1, 3)
+    p = np.ascontiguousarray(pts, np.float64).reshape(-1, 3)  # (no copy when it is one already)
     return float(np.sqrt(_far_distance2(np.asarray(light, np.float64).reshape(3), p)))
 
 

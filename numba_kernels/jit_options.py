@@ -55,5 +55,14 @@ def read_only(x: np.ndarray) -> np.ndarray:
     return v
 
 
+def float_rows(x) -> np.ndarray:
+    """``x`` as a C-contiguous (N, 3) array of float32 or float64 (other dtypes widened to float64; no
+    copy when it is one already): the kernels take either width, one specialisation each."""
+    v = np.asarray(x)
+    if v.dtype not in (np.float32, np.float64):
+        v = v.astype(np.float64)
+    return np.ascontiguousarray(v).reshape(-1, 3)
+
+
 warnings.filterwarnings("ignore", message=r"(?s).*The keyword argument 'parallel=True' was specified but no "
                         r"transformation for parallel execution was possible", category=NumbaPerformanceWarning)

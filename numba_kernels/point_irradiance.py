@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .jit_options import threaded
+from .jit_options import float_rows, threaded
 from .thread_chunks import run_chunks
 
 
@@ -38,12 +38,8 @@ def point_irradiance(positions, normals, light_position, intensity) -> np.ndarra
     """(N, 3) float64 irradiance (module docstring) of a point light at ``light_position`` (3,) with
     radiant intensity ``intensity`` (3,) on receivers at ``positions`` (N, 3) with unit ``normals``
     (N, 3); positions and normals float32 or float64."""
-    x = np.ascontiguousarray(positions).reshape(-1, 3)
-    nrm = np.ascontiguousarray(normals).reshape(-1, 3)
-    if x.dtype not in (np.float32, np.float64):
-        x = x.astype(np.float64)
-    if nrm.dtype not in (np.float32, np.float64):
-        nrm = nrm.astype(np.float64)
+    x = float_rows(positions)
+    nrm = float_rows(normals)
     if nrm.shape != x.shape:
         raise ValueError(f"point_irradiance: normals {nrm.shape} do not match positions {x.shape}")
     out = np.empty((x.shape[0], 3))
