@@ -41,8 +41,8 @@ Pipeline (all numba, prange over independent work):
    cheap bound on the footprint (no quaternion work): off-screen splats, and sub-pixel splats
    whose bounding square holds no pixel centre (most of a far scene's in a small probe face),
    cost ~30 flops instead of a full projection.
-2. prefix sum of the visible counts, then ``_write_entries`` (prange over Gaussians): the
-   full EWA projection and SH colour of each visible (Gaussian, camera) pair, written to a
+2. prefix sum of the visible counts per chunk of ``_CHUNK`` Gaussians, then ``_write_entries``
+   (prange over Gaussians): the full EWA projection and SH colour of each visible (Gaussian, camera) pair, written to a
    compacted 64-byte float32 record (colour evaluated once per camera centre, so the six
    cube faces share it).
 3. ``_bin_tiles``: parallel stable counting sort of entries into tiles (per-chunk
@@ -298,15 +298,29 @@ def _popcount(x):
 
 @njit(cache=True, error_model="numpy")
 def _visible_offsets(vis, off):
-    """Fill ``off`` (N+1,) with the exclusive prefix sum of the per-Gaussian camera counts."""
+    """Fill ``off`` (C+1,) with the exclusive prefix sum of the camera counts of ``vis``'s chunks
+    of ``_CHUNK`` Gaussians (C chunks): the first entry of each chunk; ``off[C]`` is the total."""
     n = vis.shape[0]
-    off[0] = 0
     acc = 0
-    for g in range(n):
-        b = vis[g]
-        if b != 0:
-            acc += _popcount(b)
-        off[g + 1] = acc
+    for c in range(off.shape[0] - 1):
+        off[c] = acc
+        for g in range(c * _CHUNK, min(n, (c + 1) * _CHUNK)):
+            b = vis[g]
+            if b != 0:
+                acc += _popcount(b)
+    off[off.shape[0] - 1] = acc
+
+
+@njit(cache=True, error_model="numpy")
+def _increasing_within(order, n):
+    """True when ``order`` holds strictly increasing indices in ``[0, n)``."""
+    last = -1
+    for k in range(order.shape[0]):
+        g = order[k]
+        if g <= last or g >= n:
+            return False
+        last = g
+    return True
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -380,13 +394,15 @@ def _write_range(g0, g1, positions, quats, scales, opacities, sh, order, vis, of
     function, not an inlined body: numba types and optimises a parallel loop's body twice (measured: half
     the kernel's compile time); chunks keep the call overhead negligible)."""
     use_order = order.shape[0] > 0
+    e = off[g0 // _CHUNK]  # (g0 starts a chunk)
     for k in range(g0, g1):
         bits = vis[k]
         if bits == 0:
             continue
         g = order[k] if use_order else k
-        _write_gaussian(np.uint64(g), off[k], bits, positions, quats, scales, opacities, sh, view_rot, view_t, intr,
+        _write_gaussian(np.uint64(g), e, bits, positions, quats, scales, opacities, sh, view_rot, view_t, intr,
                         clamp, cam_pos, width, height, dilation, antialiased, rec, info, depth32)
+        e += _popcount(bits)
 
 
 @njit(cache=True, **threaded(), fastmath=False, error_model="numpy")
@@ -688,7 +704,7 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
         raise ValueError("rasterize: give a mask or an order, not both")
     if order is not None:
         order = np.ascontiguousarray(order, np.int64).reshape(-1)
-        if order.size and (order[0] < 0 or order[-1] >= n or np.any(np.diff(order) <= 0)):
+        if not _increasing_within(order, n):
             raise ValueError(f"rasterize: order must hold increasing indices in [0, {n})")
         if order.size == 0:  # nothing to draw: an all-false mask
             include, order = np.zeros(n, np.bool_), None
@@ -721,7 +737,7 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     vis = np.empty(m_in, np.int64)
     run_chunks(_cull, m_in, positions, scales, opacities, include, order, cams, width, height, dilation, vis,
                min_chunk=4096)
-    off = np.empty(m_in + 1, np.int64)
+    off = np.empty((m_in + _CHUNK - 1) // _CHUNK + 1, np.int64)  # each chunk's first entry
     _visible_offsets(vis, off)
     m = int(off[-1])
     if m >= 2**31:

@@ -60,6 +60,10 @@ COMMANDS_OF = {"io": ("import", "export", "inspect", "validate"), "demo": ("demo
 COMMAND_MODULES = tuple(COMMANDS_OF)
 
 
+#: Commands that run the pipeline's numerics: the console script sets the allocator up for a batch
+#: run first (``usd_gs.pipeline.allocator``).
+BATCH_COMMANDS = ("process", "lights", "eval", "render", "bench", "demo")
+
 #: Commands that read a USD stage (they get ``--allow-missing``).
 STAGE_COMMANDS = ("export", "inspect", "validate", "process", "render", "lights", "assemble", "eval")
 
@@ -112,6 +116,10 @@ def _main(argv: list[str], process_entry: bool = False) -> int:
     from usd_gs.usd.stage import set_allow_missing
 
     set_allow_missing(bool(getattr(args, "allow_missing", False)))
+    if process_entry and args.command in BATCH_COMMANDS:  # (not for a caller's own process)
+        from usd_gs.pipeline.allocator import tune_for_batch
+
+        tune_for_batch()
     try:
         rc = int(args.handler(args) or 0)
         if rc == 0 and process_entry and getattr(args, "quick_exit", False):

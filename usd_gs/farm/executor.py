@@ -97,8 +97,12 @@ def run_chunk(task: ChunkTask) -> ChunkResult:
 
 
 def _worker_init(threads: int) -> None:
-    """Process-pool worker start: one numba thread share per worker unless the user chose."""
+    """Process-pool worker start: one numba thread share per worker unless the user chose, and the
+    allocator set up for a batch run (``usd_gs.pipeline.allocator``)."""
     os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()
 
 
 # ---------------------------------------------------------------------- backends

@@ -45,6 +45,7 @@ from usd_gs.relight.avatar import relight_factors
 from usd_gs.relight.direct import direct_irradiance
 from usd_gs.relight.far_field import FarLayers
 from usd_gs.relight.parallax import ProbeBlend
+from usd_gs.relight.probe import render_probe_faces
 from usd_gs.relight.probe_merge import MergedPrim
 from usd_gs.shadows.dgsm import prepare_occluders
 from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_shares, scale_sh, shade_sh_rows
@@ -205,6 +206,7 @@ def warm_up(groups=GROUPS) -> None:
         scale_sh(avatar.sh, opts.relight_gamma * scale)
         direct_irradiance(light, avatar.positions, normals)  # each light's direct term (a point light)
         probe.to_latlong(*opts.probe_texture)
+        render_probe_faces(everything, centre, 2, None, order=np.flatnonzero(mask))  # a render by indices
         MergedPrim.of(avatar, opts.probe_merge_cell)  # a moving prim merged for the other prims' probes
         # the far field's ball tests over the static part (FarLayers.clear, block by block)
         layers = FarLayers(blocks=PointBlocks(block_starts([(0, scene.count)])))
