@@ -12,7 +12,8 @@ Reference: ``numba_kernels.reference.capsule``.
 :func:`within_ball_blocks` answers the ball test (``a == b``) for points stored in contiguous
 blocks with bounding spheres (:func:`block_spheres`): a block wholly inside or outside the ball is
 decided at once, the others point by point, the same values as :func:`within_capsule` (its own
-reference; ``tests/test_capsule.py``).
+reference; ``tests/test_capsule.py``). :func:`within_capsule_scaled_blocks` does the same for
+:func:`within_capsule_scaled`, with each block's least and largest reach (:func:`block_reach`).
 """
 
 from __future__ import annotations
@@ -124,6 +125,72 @@ def _within_ball_blocks(b0, b1, p, starts, centres, radii, a, radius, out):
         else:
             for m in range(s, e):
                 out[m] = _distance2(p, m, a, zero, 0.0) <= r2
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _block_reach(b0, b1, scales, factor, starts, lo, hi):
+    for b in range(b0, b1):
+        r_lo, r_hi = math.inf, -math.inf
+        for m in range(starts[b], starts[b + 1]):
+            r = np.float64(factor * max(scales[m, 0], scales[m, 1], scales[m, 2]))  # (_within_scaled's value)
+            if not r == r:  # NaN: the block is never decided at once
+                r_lo, r_hi = math.nan, math.nan
+                break
+            r_lo, r_hi = min(r_lo, r), max(r_hi, r)
+        lo[b], hi[b] = r_lo, r_hi
+
+
+@njit(cache=True, **threaded(), fastmath=False)
+def _within_scaled_blocks(b0, b1, p, scales, factor, starts, centres, radii, reach_lo, reach_hi, a, u, length,
+                          radius, out):
+    for b in range(b0, b1):
+        s, e = starts[b], starts[b + 1]
+        if e <= s:
+            continue
+        dc = math.sqrt(_distance2(centres, b, a, u, length))
+        tol = 1e-9 * (abs(radius) + dc + radii[b] + abs(reach_lo[b]) + abs(reach_hi[b]))
+        if dc + radii[b] < radius + reach_lo[b] - tol:  # every point within its own reach
+            out[s:e] = True
+        elif dc - radii[b] > radius + reach_hi[b] + tol:  # every point beyond it
+            out[s:e] = False
+        else:
+            for m in range(s, e):
+                r = radius + np.float64(factor * max(scales[m, 0], scales[m, 1], scales[m, 2]))
+                out[m] = _distance2(p, m, a, u, length) <= r * r
+
+
+def block_reach(scales, starts, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per block (``starts`` as for :func:`block_spheres`) the least and largest reach ``factor *
+    scales.max(axis=1)`` of its points (float32 ``scales`` (N, 3), the value
+    :func:`within_capsule_scaled` uses): ``(lo (B,), hi (B,))`` float64; inf / -inf for an empty
+    block, NaN for a block with a NaN reach."""
+    s = np.ascontiguousarray(scales, np.float32).reshape(-1, 3)
+    st = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    nb = max(st.size - 1, 0)
+    lo, hi = np.full(nb, np.inf), np.full(nb, -np.inf)
+    run_chunks(_block_reach, nb, s, np.float32(factor), st, lo, hi, min_chunk=8)
+    return lo, hi
+
+
+def within_capsule_scaled_blocks(positions, starts, spheres, reach, a, b, radius: float, scales,
+                                 factor: float) -> np.ndarray:
+    """``within_capsule_scaled(positions, a, b, radius, scales, factor)`` bit for bit, with blocks
+    of points (``starts`` and ``spheres`` as :func:`block_spheres` gives them, ``reach`` as
+    :func:`block_reach` gives it for these ``scales`` and ``factor``) that lie wholly inside or
+    outside every point's capsule decided at once: a block's points are tested one by one only
+    where its sphere, widened by its least and largest reach, straddles the capsule's surface (by
+    more than a relative 1e-9). Rows outside every block are False."""
+    p, a64, u, length = _segment(positions, a, b)
+    n = p.shape[0]
+    s = np.ascontiguousarray(scales, np.float32).reshape(n, 3)
+    st = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    centres, radii = spheres
+    out = np.zeros(n, np.bool_)
+    run_chunks(_within_scaled_blocks, max(st.size - 1, 0), p, s, np.float32(factor), st,
+               np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(radii, np.float64),
+               np.ascontiguousarray(reach[0], np.float64), np.ascontiguousarray(reach[1], np.float64), a64, u,
+               length, float(radius), out, min_chunk=8)
+    return out
 
 
 def block_spheres(positions, starts) -> tuple[np.ndarray, np.ndarray]:

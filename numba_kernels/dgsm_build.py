@@ -310,6 +310,18 @@ def _visit_tiles(i, fx, fy, rp, wt, tile_active, stamp, counts, items, fill, fil
     tx1 = int(math.floor((fx + rp) / TILE))
     ty0 = int(math.floor((fy - rp) / TILE))
     ty1 = int(math.floor((fy + rp) / TILE))
+    if tx0 >= 0 and ty0 >= 0 and tx1 < wt and ty1 < wt:
+        # the rectangle inside the atlas (the usual case): no fold-wrap, so no tile twice and no stamp
+        for tx in range(tx0, tx1 + 1):
+            for t in range(tx * wt + ty0, tx * wt + ty1 + 1):
+                if not tile_active[t]:
+                    continue
+                if fill_mode:
+                    items[fill[t]] = i
+                    fill[t] += 1
+                else:
+                    counts[t] += 1
+        return
     for tx in range(tx0, tx1 + 1):
         for ty in range(ty0, ty1 + 1):
             a, b = wrap_pixel(tx, ty, wt)

@@ -96,3 +96,32 @@ def test_ball_blocks_equal_the_per_point_test_bit_for_bit():
     assert decided > 100  # most blocks were decided whole
     # rows outside the blocks are False
     assert not within_ball_blocks(p, starts[:2], spheres, centre, 1e3)[starts[1]:].any()
+
+
+def test_scaled_blocks_equal_the_per_point_test_bit_for_bit():
+    """within_capsule_scaled_blocks decides blocks wholly inside or outside every point's capsule at
+    once and tests the others point by point: the same booleans as within_capsule_scaled, for
+    blocks inside, outside and straddling, an empty block, a ball (a == b) and a NaN scale."""
+    from numba_kernels.capsule import block_reach, block_spheres, within_capsule_scaled_blocks
+
+    rng = np.random.default_rng(4)
+    centres = np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 0.0], [3.0, 1.5, 0.0], [0.5, 0.2, 0.1], [-20.0, 5.0, 3.0]])
+    sizes = [500, 700, 600, 0, 400]
+    p = np.concatenate([c + rng.normal(0, 0.6, (n, 3)) for c, n in zip(centres, sizes, strict=True)]).astype(np.float32)
+    scales = np.exp(rng.uniform(np.log(0.01), np.log(0.3), (len(p), 3))).astype(np.float32)
+    scales[1234] = np.nan  # (block 2: never decided at once)
+    starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    spheres = block_spheres(p, starts)
+    reach = block_reach(scales, starts, 3.0)
+    assert np.isnan(reach[0][2]) and reach[0][3] == np.inf
+    ref_hi = 3.0 * scales[:500].astype(np.float32).max(axis=1)
+    assert reach[1][0] == np.float64(ref_hi.max()) and reach[0][0] == np.float64(ref_hi.min())
+    decided = set()
+    for a, b, radius in (([-1.0, 0.0, 0.0], [5.0, 0.0, 0.0], 1.5), ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], 2.0),
+                         ([0.0, -4.0, 0.0], [40.0, 4.0, 0.0], 0.8), ([-25.0, 5.0, 3.0], [31.0, 0.0, 0.0], 3.0)):
+        got = within_capsule_scaled_blocks(p, starts, spheres, reach, np.array(a), np.array(b), radius, scales, 3.0)
+        want = within_capsule_scaled(p, np.array(a), np.array(b), radius, scales, 3.0)
+        assert np.array_equal(got, want)
+        decided |= {(bool(want[s:e].all()), bool(want[s:e].any())) for s, e in zip(starts[:-1], starts[1:],
+                                                                                      strict=True) if e > s}
+    assert {(True, True), (False, False), (False, True)} <= decided  # blocks inside, outside and straddling

@@ -180,6 +180,31 @@ def test_concatenate_pads_sh_and_keeps_common_raw_fields():
     assert GaussianSet.concatenate([a, b]).log_scales is None
 
 
+def test_concatenate_in_threads_copies_every_row(monkeypatch):
+    """A result above PARALLEL_COPY_BYTES is filled in row ranges on threads: the same arrays as
+    the fields concatenated one by one (ranges cutting through sets, empty sets, padded SH)."""
+    import numba
+
+    import usd_gs.gaussians as gaussians
+
+    sets = [make_set(n, d, seed=i) for i, (n, d) in enumerate([(70_000, 0), (0, 3), (5, 3), (90_000, 1), (1, 2)])]
+    monkeypatch.setattr(gaussians, "PARALLEL_COPY_BYTES", 1)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        c = GaussianSet.concatenate(sets, label="all")
+    finally:
+        numba.set_num_threads(threads)
+    for name in ("positions", "orientations", "scales", "opacities"):
+        np.testing.assert_array_equal(getattr(c, name), np.concatenate([getattr(g, name) for g in sets]))
+    want = np.zeros((c.count, 16, 3), np.float32)
+    at = 0
+    for g in sets:
+        want[at:at + g.count, :g.sh.shape[1]] = g.sh
+        at += g.count
+    np.testing.assert_array_equal(c.sh, want)
+
+
 def test_subset_mask_and_index():
     g = make_set(40, 2)
     m = g.opacities > 0.5

@@ -6,6 +6,7 @@ import numpy as np
 from dgsm_testutil import random_rotations
 
 from usd_gs.gaussians import GaussianSet
+from usd_gs.point_blocks import PointBlocks
 from usd_gs.shadows.dgsm import DGSMConfig, exact_transmittance
 from usd_gs.shadows.static_scene import StaticSceneAtlas
 
@@ -79,15 +80,19 @@ def test_bounded_atlas_packs_only_what_the_receivers_reach_and_gives_the_same_bi
     cfg = DGSMConfig(sampling="center")
     full = StaticSceneAtlas(scene, LIGHT, cfg, bounded=False)
     bounded = StaticSceneAtlas(scene, LIGHT, cfg)
+    # the same with the capsule test decided table by table (usd_gs.point_blocks)
+    blocks = PointBlocks.of_ranges({"/near": (0, near.count), "/far": (near.count, scene.count)})
+    by_block = StaticSceneAtlas(scene, LIGHT, cfg, blocks=blocks)
     for x in (0.0, 0.1, 4.0, 29.5):  # the last two leave the reach: two more packings
         pts = _walker(np.random.default_rng(int(x * 10)), x)
-        a, b = full.transmittance(pts), bounded.transmittance(pts)
+        a, b, c = full.transmittance(pts), bounded.transmittance(pts), by_block.transmittance(pts)
         assert np.array_equal(a.view(np.uint64), b.view(np.uint64)), x
+        assert np.array_equal(a.view(np.uint64), c.view(np.uint64)) and by_block.kept == bounded.kept, x
         if x == 0.0:
             assert (a < 0.5).mean() > 0.2  # under the near table: in its shadow
         if x == 0.1:
             assert bounded.kept == near.count and bounded.builds == 1  # the far table left out
-    assert bounded.builds == 3 and bounded.kept == scene.count
+    assert bounded.builds == 3 and bounded.kept == scene.count and by_block.builds == 3
 
 
 def test_block_extents_of_a_mask_are_the_subsets_extent_bit_for_bit():

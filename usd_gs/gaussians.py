@@ -361,21 +361,44 @@ class GaussianSet:
             vals = [getattr(g, name) for g in sets]
             return None if any(v is None for v in vals) else np.concatenate(vals)
 
-        # the SH written straight into the padded result (no padded copy of each input first: a
-        # large degree-0 scene beside a degree-3 avatar would be copied twice at 16 coefficients)
-        sh = np.empty((sum(g.count for g in sets), sh3dgs.num_coeffs(degree), 3), np.float32)
-        at = 0
-        for g in sets:
-            k = g.sh.shape[1]
-            sh[at:at + g.count, :k] = g.sh
-            sh[at:at + g.count, k:] = 0.0
-            at += g.count
+        # the fields and the SH written straight into the result (no padded copy of each input's SH
+        # first: a large degree-0 scene beside a degree-3 avatar would be copied twice at 16
+        # coefficients); a large result's rows are filled in threads (its fresh pages fault in there)
+        starts = np.cumsum([0] + [g.count for g in sets])
+        n = int(starts[-1])
+        out = {"positions": np.empty((n, 3), np.float32), "orientations": np.empty((n, 4), np.float32),
+               "scales": np.empty((n, 3), np.float32), "opacities": np.empty(n, np.float32),
+               "sh": np.empty((n, sh3dgs.num_coeffs(degree), 3), np.float32)}
+
+        def fill(lo: int, hi: int) -> None:
+            for i in range(int(np.searchsorted(starts, lo, "right")) - 1, len(sets)):
+                a, b = max(lo, int(starts[i])), min(hi, int(starts[i + 1]))
+                if a >= hi:
+                    break
+                if b > a:
+                    g, r0, r1 = sets[i], a - int(starts[i]), b - int(starts[i])
+                    for name in ("positions", "orientations", "scales", "opacities"):
+                        out[name][a:b] = getattr(g, name)[r0:r1]
+                    k = g.sh.shape[1]
+                    out["sh"][a:b, :k] = g.sh[r0:r1]
+                    out["sh"][a:b, k:] = 0.0
+
+        if sum(a.nbytes for a in out.values()) >= PARALLEL_COPY_BYTES:
+            from numba_kernels.thread_chunks import run_chunks
+
+            run_chunks(fill, n, chunks_per_thread=1, min_chunk=1 << 16)
+        else:
+            fill(0, n)
         keys = set(sets[0].extras)
         for g in sets[1:]:
             keys &= {k for k in g.extras if g.extras[k].shape[1:] == sets[0].extras.get(k, np.zeros(0)).shape[1:]}
         extras = {k: np.concatenate([g.extras[k] for g in sets]) for k in sorted(keys)}
-        return GaussianSet(cat("positions"), cat("orientations"), cat("scales"), cat("opacities"),
-                           sh, cat("log_scales"), cat("logit_opacities"), extras, label=label)
+        return GaussianSet(out["positions"], out["orientations"], out["scales"], out["opacities"], out["sh"],
+                           cat("log_scales"), cat("logit_opacities"), extras, label=label)
+
+
+#: bytes from which :meth:`GaussianSet.concatenate` fills its result in threads
+PARALLEL_COPY_BYTES = 64 << 20
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -6,7 +6,8 @@ most prims lie wholly inside or wholly outside the ball. :class:`PointBlocks` ke
 (split into runs of at most :data:`BLOCK`) as a block with the bounding sphere of its centres
 (``numba_kernels.capsule.block_spheres``, computed on first use) and answers
 :meth:`PointBlocks.within` with ``numba_kernels.capsule.within_ball_blocks``: the same booleans as
-``within_capsule`` on every row, testing row by row only the blocks the ball's boundary crosses.
+``within_capsule`` on every row, testing row by row only the blocks the ball's boundary crosses
+(and :meth:`PointBlocks.within_capsule_scaled` likewise for a capsule with each point's own reach).
 """
 
 from __future__ import annotations
@@ -15,7 +16,14 @@ import threading
 
 import numpy as np
 
-from numba_kernels.capsule import block_spheres, within_ball_blocks, within_capsule
+from numba_kernels.capsule import (
+    block_reach,
+    block_spheres,
+    within_ball_blocks,
+    within_capsule,
+    within_capsule_scaled,
+    within_capsule_scaled_blocks,
+)
 
 #: a block holds at most this many rows (a larger prim is split: a capture's points are near each
 #: other in storage order more often than not; where they are not, a block is merely tested row by row)
@@ -48,7 +56,14 @@ class PointBlocks:
     def __init__(self, starts):
         self.starts = np.asarray(starts, np.int64)
         self._spheres = None
+        self._reach: dict = {}  # factor -> block_reach of the scales the first call gave
         self._lock = threading.Lock()
+
+    def _spheres_of(self, positions: np.ndarray):
+        with self._lock:
+            if self._spheres is None:
+                self._spheres = block_spheres(positions, self.starts)
+            return self._spheres
 
     @classmethod
     def of_ranges(cls, ranges) -> PointBlocks | None:
@@ -64,8 +79,20 @@ class PointBlocks:
         by block; every row when ``positions`` does not have ``starts[-1]`` rows."""
         if len(positions) != self.starts[-1]:
             return within_capsule(positions, centre, centre, radius)
+        return within_ball_blocks(positions, self.starts, self._spheres_of(positions), centre, radius)
+
+    def within_capsule_scaled(self, positions: np.ndarray, a, b, radius: float, scales: np.ndarray,
+                              factor: float) -> np.ndarray:
+        """(N,) bool: ``within_capsule_scaled(positions, a, b, radius, scales, factor)``, the same
+        values, block by block (``scales``: the same values every call, as the positions); every row
+        when ``positions`` does not have ``starts[-1]`` rows."""
+        if len(positions) != self.starts[-1]:
+            return within_capsule_scaled(positions, a, b, radius, scales, factor)
+        spheres = self._spheres_of(positions)
         with self._lock:
-            if self._spheres is None:
-                self._spheres = block_spheres(positions, self.starts)
-            spheres = self._spheres
-        return within_ball_blocks(positions, self.starts, spheres, centre, radius)
+            reach = self._reach.get(float(factor))
+        if reach is None:
+            reach = block_reach(scales, self.starts, factor)
+            with self._lock:
+                self._reach[float(factor)] = reach
+        return within_capsule_scaled_blocks(positions, self.starts, spheres, reach, a, b, radius, scales, factor)

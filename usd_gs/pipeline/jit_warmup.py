@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
-from numba_kernels.capsule import within_capsule
+from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from numba_kernels.cube_warp import warp_layer
 from numba_kernels.normals import gaussian_normals, local_normals_to_world, normals_to_local
 from numba_kernels.sh_output import half_bits_where
@@ -237,7 +237,10 @@ def warm_up(groups=GROUPS) -> None:
         drecv = Receivers.build([("/avatar", avatar)])
         part = receiver_points(scene, drecv, light, centre_cfg, roi="all", bias=opts.contact_bias)
         keep = ~within_capsule(scene.positions, light.position, light.position, opts.emitter_radius)  # _emitter_keep
-        atlas = StaticSceneAtlas(scene, light.position, centre_cfg, keep=keep)
+        atlas = StaticSceneAtlas(scene, light.position, centre_cfg, keep=keep,
+                                 blocks=PointBlocks(block_starts([(0, scene.count)])))
+        # (the light estimation's sun test, where no capsule test of the atlas now compiles it)
+        within_capsule_scaled(scene.positions, light.position, np.zeros(3), 1.0, scene.scales, 3.0)
         for _ in range(2):  # (the second lookup is a later frame's: its reach test)
             atlas.transmittance(part[1])
         parts = [receiver_points(avatar, recv, light, opts.dgsm, roi=opts.roi),

@@ -1421,7 +1421,8 @@ class ShotProcessor:
                 self._scene_packs["block extents"] = BlockExtents(self._scene_block, self._centre_cfg.k_sigma)
             self._scene_packs[key] = StaticSceneAtlas(self._scene_block, light.position, self._centre_cfg,
                                                       keep=self._emitter_keep(light),
-                                                      extents=self._scene_packs["block extents"])
+                                                      extents=self._scene_packs["block extents"],
+                                                      blocks=self._point_blocks(self._scene_block_ranges))
         return self._scene_packs[key]
 
     def _static_sun_atlas(self, light):

@@ -33,6 +33,7 @@ from numba_kernels import dgsm_build, dgsm_sample
 from numba_kernels.capsule import within_capsule, within_capsule_scaled
 from numba_kernels.lattice_lookup import CORNERS, lattice_interpolate, lattice_stencils
 from usd_gs.gaussians import GaussianSet
+from usd_gs.point_blocks import PointBlocks
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
 from usd_gs.shadows.lattice_index import LatticeIndex
 
@@ -113,11 +114,15 @@ class BlockExtents:
 class StaticSceneAtlas:
     """Lazily filled DGSM of ``occluders`` (static, world space) for a point light at
     ``light_position`` (3,) metres; ``K`` radial bins (None: ``2 * cfg.K``); ``bounded``: pack
-    only the occluders the receivers' reach needs (module docstring), else all of them."""
+    only the occluders the receivers' reach needs (module docstring), else all of them; ``blocks``:
+    None, or the occluders' rows as ``usd_gs.point_blocks.PointBlocks`` (a scene of many bricks),
+    whose capsule test then decides whole bricks at once (the same occluders)."""
 
     def __init__(self, occluders: GaussianSet, light_position, cfg: DGSMConfig, K: int | None = None,
-                 bounded: bool = True, keep: np.ndarray | None = None, extents: BlockExtents | None = None):
+                 bounded: bool = True, keep: np.ndarray | None = None, extents: BlockExtents | None = None,
+                 blocks: PointBlocks | None = None):
         self.cfg = cfg
+        self._blocks = blocks
         self.light = np.asarray(light_position, np.float64).reshape(3)
         self.width = int(cfg.atlas_size)
         self.K = int(K or 2 * cfg.K)
@@ -189,6 +194,9 @@ class StaticSceneAtlas:
         length = float(np.linalg.norm(centre - self.light))
         far = length + radius + self.t_max / self.K
         margin = self.t_max / self.K + 2.0 * (4.0 / self.width) * far
+        if self._blocks is not None:
+            return self._blocks.within_capsule_scaled(self._all.positions, self.light, centre, radius + margin,
+                                                      self._all.scales, self.cfg.k_sigma)
         return within_capsule_scaled(self._all.positions, self.light, centre, radius + margin, self._all.scales,
                                      self.cfg.k_sigma)
 
