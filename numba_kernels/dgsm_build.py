@@ -85,6 +85,8 @@ class Atlas(NamedTuple):
     # culling lists kept for exact refinement (dgsm_sample.lookup_point_refined):
     # (tile_start, tile_items, glob, cone) or None when built without tile culling
     tiles: tuple | None = None
+    # the ROI points' lookup stencils (build_point's roi_points, in their order), or None
+    stencils: Stencils | None = None
 
     def dense(self) -> np.ndarray:
         """(W, W, K) float32 table with the implicit ones filled in (tests, small W only)."""
@@ -94,8 +96,17 @@ class Atlas(NamedTuple):
 
 
 # --------------------------------------------------------------------------- ROI
+class Stencils(NamedTuple):
+    """The trilinear lookup stencils of M points in a point-light atlas (:func:`point_stencils`)."""
+
+    pix: np.ndarray  # (M, 4) int64 flat ids of the fold-wrapped pixels (i0 + di, j0 + dj), (di, dj) = 00, 01, 10, 11
+    kk: np.ndarray  # (M, 2) int64 the two radial bins, clamped to [0, K - 1] (the ROI's)
+    wts: np.ndarray  # (M, 3) float64 the weights (wx, wy, wk) of dgsm_sample.lookup_one_range
+    k0: np.ndarray  # (M,) int64 its lower bin: -1 before the first bin centre, -2 for a point at the light
+
+
 @njit(cache=True, **threaded(), fastmath=False)
-def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk):
+def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk, wts, k0s):
     for m in range(i0_, i1_):
         vx = pts[m, 0] - light[0]
         vy = pts[m, 1] - light[1]
@@ -105,8 +116,10 @@ def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk):
             vx, vy, vz = 0.0, 0.0, 1.0
         u, v = oct_encode(vx, vy, vz)
         fx, fy = uv_to_pixel_coords(u, v, w)
-        i0 = int(math.floor(fx))
-        j0 = int(math.floor(fy))
+        fi0 = math.floor(fx)
+        fj0 = math.floor(fy)
+        i0 = int(fi0)
+        j0 = int(fj0)
         c = 0
         for di in range(2):
             for dj in range(2):
@@ -119,6 +132,40 @@ def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk):
         k0 = int(math.floor(fk))
         kk[m, 0] = max(k0, 0)
         kk[m, 1] = min(k0 + 1, K - 1)
+        # the lookup's weights, as dgsm_sample.lookup_one_range computes them
+        wts[m, 0] = fx - fi0
+        wts[m, 1] = fy - fj0
+        if t == 0.0:
+            k0s[m] = -2
+            wts[m, 2] = 0.0
+        elif fk < 0.0:
+            k0s[m] = -1
+            wts[m, 2] = 2.0 * t * K / t_max
+        else:
+            fk0 = math.floor(fk)
+            k0s[m] = int(fk0)
+            wts[m, 2] = fk - fk0
+
+
+def point_stencils(light, pts, w: int, K: int, t_max: float) -> Stencils:
+    """:class:`Stencils` of ``pts`` (M, 3) float64 C-contiguous in the atlas of side ``w``, ``K``
+    bins and range ``t_max`` of a point light at ``light`` (3,): what :func:`roi_voxels` needs and
+    what ``dgsm_sample.lookup_point_refined`` (``stencils=``) then reads instead of computing
+    every point's direction and bin again (the same values)."""
+    m = pts.shape[0]
+    st = Stencils(np.empty((m, 4), np.int64), np.empty((m, 2), np.int64), np.empty((m, 3)), np.empty(m, np.int64))
+    run_chunks(_stencils, m, light, pts, w, K, t_max, *st, min_chunk=1024)
+    return st
+
+
+def stencil_roi(st: Stencils, w: int):
+    """Unique flat pixel ids ``P`` and ``(kmin, kmax)`` covering the stencils ``st`` (empty ``P``
+    and ``(0, -1)`` for none)."""
+    if st.k0.shape[0] == 0:
+        return np.zeros(0, np.int64), 0, -1
+    mask = np.zeros(w * w, np.bool_)
+    mask[st.pix.ravel()] = True
+    return np.flatnonzero(mask), int(st.kk[:, 0].min()), int(st.kk[:, 1].max())
 
 
 @njit(cache=True, fastmath=False)  # serial: see jit_options.SERIAL_NOTE
@@ -169,15 +216,7 @@ def deepest_bins(pix, kk, pixels, n_pixels: int) -> np.ndarray:
 def roi_voxels(light, pts, w: int, K: int, t_max: float):
     """Unique flat pixel ids ``P`` and ``(kmin, kmax)`` covering the trilinear stencils of
     ``pts`` (M, 3). Empty ``pts`` gives an empty ``P`` and ``(0, -1)``."""
-    m = pts.shape[0]
-    if m == 0:
-        return np.zeros(0, np.int64), 0, -1
-    pix = np.empty((m, 4), np.int64)
-    kk = np.empty((m, 2), np.int64)
-    run_chunks(_stencils, pts.shape[0], light, pts, w, K, t_max, pix, kk, min_chunk=1024)
-    mask = np.zeros(w * w, np.bool_)
-    mask[pix.ravel()] = True
-    return np.flatnonzero(mask), int(kk[:, 0].min()), int(kk[:, 1].max())
+    return stencil_roi(point_stencils(light, pts, w, K, t_max), w)
 
 
 # ----------------------------------------------------------------- tile culling
@@ -707,8 +746,10 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
         raise ValueError(f"K must be >= 1, got {K}")
     if t_max is None:
         t_max = t_max_for(far_distance(light, pts), K)
+    stencils = None
     if use_roi:
-        pixels, kmin, kmax = roi_voxels(light, pts, width, K, t_max)
+        stencils = point_stencils(light, pts, width, K, t_max)
+        pixels, kmin, kmax = stencil_roi(stencils, width)
     else:
         pixels, kmin, kmax = np.arange(width * width, dtype=np.int64), 0, K - 1
     index, out, pairs, erfs = atlas_buffers(width * width, pixels, kmin, kmax)
@@ -730,4 +771,5 @@ def build_point(light, occ, dir_dep: int, cov6, roi_points, width: int = 512, K:
         accumulate_pixels(light, occ, dir_dep, pixels, width, K, t_max, kmin, kmax, (start, items, glob, cone),
                           use_tiles, bin_skip, out, pairs, erfs)
     tiles = (start, items, glob, cone) if (use_tiles and len(pixels) and nk and occ.shape[0]) else None
-    return Atlas(width, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), tiles)
+    return Atlas(width, K, float(t_max), kmin, kmax, index, out, pixels, int(pairs.sum()), int(erfs.sum()), tiles,
+                 stencils)

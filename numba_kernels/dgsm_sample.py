@@ -33,7 +33,12 @@ from .thread_chunks import run_chunks
 
 @njit(cache=True, fastmath=False)
 def _voxel(index, values, w, kmin, kmax, pi, pj, k):
-    r = index[pi * w + pj]
+    return _voxel_at(index, values, kmin, kmax, pi * w + pj, k)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _voxel_at(index, values, kmin, kmax, p, k):
+    r = index[p]
     if r < 0 or k < kmin or k > kmax:
         return 1.0
     return values[r, k - kmin]
@@ -123,6 +128,46 @@ def _lookup_flag(i0_, i1_, index, values, w, K, t_max, kmin, kmax, light, pts, c
             tile[m] = -1
 
 
+@njit(cache=True, **threaded(), fastmath=False)
+def _lookup_flag_stencils(i0_, i1_, index, values, w, kmin, kmax, light, pts, pix, wts, k0s, contrast, out, refined,
+                          tile):
+    """:func:`_lookup_flag` from the points' ``dgsm_build.Stencils`` (``pix``, ``wts``, ``k0s``):
+    the same blend, in the same order, of the same voxels with the same weights."""
+    wt = w // 8
+    ox, oy, oz = light[0], light[1], light[2]
+    for m in range(i0_, i1_):
+        k0 = k0s[m]
+        if k0 == -2:  # at the light
+            out[m] = 1.0
+            refined[m] = False
+            tile[m] = -1
+            continue
+        wx, wy, wk = wts[m, 0], wts[m, 1], wts[m, 2]
+        acc = 0.0
+        lo = 1.0
+        hi = 0.0
+        for di in range(2):
+            for dj in range(2):
+                wij = (wx if di else 1.0 - wx) * (wy if dj else 1.0 - wy)
+                if wij == 0.0:
+                    continue
+                p = pix[m, 2 * di + dj]
+                a = _voxel_at(index, values, kmin, kmax, p, k0)
+                b = _voxel_at(index, values, kmin, kmax, p, k0 + 1) if wk > 0.0 else a
+                acc += wij * ((1.0 - wk) * a + wk * b)
+                lo = min(lo, a, b)
+                hi = max(hi, a, b)
+        out[m] = min(max(acc, 0.0), 1.0)
+        refined[m] = hi - lo > contrast
+        if refined[m]:
+            u, v = oct_encode(pts[m, 0] - ox, pts[m, 1] - oy, pts[m, 2] - oz)
+            fx, fy = uv_to_pixel_coords(u, v, w)
+            ti, tj = wrap_pixel(int(math.floor(fx / 8.0)), int(math.floor(fy / 8.0)), wt)
+            tile[m] = ti * wt + tj
+        else:
+            tile[m] = -1
+
+
 @njit(cache=True, fastmath=False)
 def _refine_group(g, light, pts, rows, gstart, gtile, occ, dir_dep, use_tiles, tile_start, tile_items, glob, cone,
                   out):
@@ -174,7 +219,8 @@ def _refine_groups(i0_, i1_, light, pts, rows, gstart, gtile, occ, dir_dep, use_
                       glob, cone, out)
 
 
-def lookup_point_refined(atlas, light, points, occ, dir_dep: int, contrast: float = 0.1, group: int = 64):
+def lookup_point_refined(atlas, light, points, occ, dir_dep: int, contrast: float = 0.1, group: int = 64,
+                         stencils=None):
     """Trilinear lookup with edge-adaptive exact refinement (beyond the paper).
 
     Where the voxels a lookup blends differ by more than ``contrast`` (a shadow edge sharper
@@ -182,15 +228,23 @@ def lookup_point_refined(atlas, light, points, occ, dir_dep: int, contrast: floa
     from the occluders of the atlas's culling tile (cone-tested, plus the global list), i.e.
     exact up to the k_sigma truncation of the culling. Refined points are processed in groups
     of at most ``group`` per tile. Returns ``(values (M,) float64, refined (M,) bool)``.
-    ``occ, dir_dep``: the packed occluders the atlas was built from."""
+    ``occ, dir_dep``: the packed occluders the atlas was built from. ``stencils``: None, or
+    ``dgsm_build.point_stencils`` of these very ``points`` in this atlas (its width, K and t_max;
+    e.g. ``atlas.stencils`` for its own ROI points), read instead of computed again (the same values)."""
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     light = np.asarray(light, dtype=np.float64)
     m = pts.shape[0]
     out = np.empty(m)
     refined = np.zeros(m, np.bool_)
     tile = np.empty(m, np.int64)
-    run_chunks(_lookup_flag, m, atlas.index, atlas.values, atlas.width, atlas.K, atlas.t_max, atlas.kmin, atlas.kmax,
-               light, pts, float(contrast), out, refined, tile, min_chunk=1024)
+    if stencils is not None:
+        if stencils.k0.shape[0] != m:
+            raise ValueError(f"lookup_point_refined: stencils of {stencils.k0.shape[0]} points for {m} points")
+        run_chunks(_lookup_flag_stencils, m, atlas.index, atlas.values, atlas.width, atlas.kmin, atlas.kmax, light,
+                   pts, stencils.pix, stencils.wts, stencils.k0, float(contrast), out, refined, tile, min_chunk=1024)
+    else:
+        run_chunks(_lookup_flag, m, atlas.index, atlas.values, atlas.width, atlas.K, atlas.t_max, atlas.kmin,
+                   atlas.kmax, light, pts, float(contrast), out, refined, tile, min_chunk=1024)
     rows = np.flatnonzero(refined)
     if len(rows) == 0:
         return out, refined

@@ -192,3 +192,37 @@ def test_refined_lookup_is_exact_at_edges_and_plain_elsewhere(use_tiles):
     np.testing.assert_array_equal(got[~refined], plain[~refined])
     np.testing.assert_allclose(got[refined], ex[refined], atol=1e-9)  # k_sigma = 8: truncation ~1e-14
     assert np.abs(plain[refined] - ex[refined]).max() > 0.2  # the plain lookup was far off there
+
+
+def test_refined_lookup_from_stencils_is_the_lookup_bit_for_bit():
+    """lookup_point_refined(stencils=point_stencils(...)) reads each point's pixels, bins and weights
+    from its stencil instead of computing them again: the same values and flags, bit for bit, for
+    points at the light, before the first bin centre, beyond the last one, on the octahedral
+    map's seams and poles, and the build's own ROI stencils (atlas.stencils)."""
+    from numba_kernels.dgsm_build import point_stencils
+    from numba_kernels.dgsm_sample import lookup_point_refined
+
+    rng = np.random.default_rng(11)
+    *_, occ, dd, cov6 = random_occluders(rng, 60, centre=(0, 1.0, 0), spread=0.3, log_s=(-4.0, -2.5),
+                                         alpha=(0.5, 0.99))
+    light = np.array([0.05, 2.5, 0.0])
+    pts = np.stack([rng.uniform(-1.5, 1.5, 5000), rng.uniform(-0.5, 2.4, 5000), rng.uniform(-1.5, 1.5, 5000)], 1)
+    at = build_point(light, occ, dd, cov6, pts, 32, 16, k_sigma=4.0)
+    assert at.stencils is not None and at.stencils.k0.shape == (5000,)
+    want, want_ref = lookup_point_refined(at, light, pts, occ, dd, contrast=0.05)
+    got, got_ref = lookup_point_refined(at, light, pts, occ, dd, contrast=0.05, stencils=at.stencils)
+    assert np.array_equal(got.view(np.uint64), want.view(np.uint64)) and np.array_equal(got_ref, want_ref)
+    assert 0.02 < want_ref.mean() < 0.95
+    # hard points in the same atlas: the light itself, just off it (before the first bin centre),
+    # beyond t_max, straight up and down (poles), on the seams of the fold (x = 0 or z = 0 below the light)
+    hard = np.array([light, light + [1e-9, 0, 0], light + [0, -1e-3, 0], light + [0, -50.0, 0],
+                     light + [0, 1.0, 0], light + [0, -1.0, 0], light + [0.0, -1.0, 0.7], light + [0.7, -1.0, 0.0],
+                     light + [-0.7, -1.0, 0.0], light + [0.0, -1.0, -0.7], light + [1e-12, -1.0, 1e-12]])
+    st = point_stencils(light, hard, at.width, at.K, at.t_max)
+    assert st.k0[0] == -2 and st.k0[2] == -1 and st.k0[3] == at.K - 1
+    want, want_ref = lookup_point_refined(at, light, hard, occ, dd, contrast=0.05)
+    got, got_ref = lookup_point_refined(at, light, hard, occ, dd, contrast=0.05, stencils=st)
+    assert np.array_equal(got.view(np.uint64), want.view(np.uint64)) and np.array_equal(got_ref, want_ref)
+    assert got[0] == 1.0
+    with pytest.raises(ValueError, match="stencils of 11 points for 5000"):
+        lookup_point_refined(at, light, pts, occ, dd, stencils=st)

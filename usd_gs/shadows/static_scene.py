@@ -210,12 +210,14 @@ class StaticSceneAtlas:
         """(computed_pixels, K) float32 voxel columns, in the order of ``pixels``."""
         return self._columns.values
 
-    def _extend(self, points: np.ndarray) -> None:
-        """Compute the voxel columns of ``points``' trilinear stencils that are not there yet."""
-        need, _, _ = dgsm_build.roi_voxels(self.light, points, self.width, self.K, self.t_max)
+    def _extend(self, points: np.ndarray) -> dgsm_build.Stencils:
+        """Compute the voxel columns of ``points``' trilinear stencils that are not there yet;
+        returns the stencils (``dgsm_build.point_stencils``) for the lookups of these points."""
+        stencils = dgsm_build.point_stencils(self.light, points, self.width, self.K, self.t_max)
+        need, _, _ = dgsm_build.stencil_roi(stencils, self.width)
         new = need[self.index[need] < 0]
         if new.size == 0:
-            return
+            return stencils
         out = np.ones((new.size, self.K), np.float32)
         pairs = np.zeros(new.size, np.int64)
         erfs = np.zeros(new.size, np.int64)
@@ -226,6 +228,7 @@ class StaticSceneAtlas:
         self.pixels = np.concatenate([self.pixels, new])
         self.pairs += int(pairs.sum())
         self.erf_evals += int(erfs.sum())
+        return stencils
 
     def atlas(self) -> dgsm_build.Atlas:
         """The atlas as computed so far (``dgsm_build.Atlas``; uncomputed voxels read 1)."""
@@ -242,12 +245,12 @@ class StaticSceneAtlas:
             self._reach_for(pts)
             if self.kept == 0:
                 return np.ones(pts.shape[0])
-        self._extend(pts)
+        stencils = self._extend(pts)
         atlas = self.atlas()
         if self.cfg.refine_contrast is None:
             return dgsm_sample.lookup_point(atlas, self.light, pts)
         vals, _ = dgsm_sample.lookup_point_refined(atlas, self.light, pts, self.occ, self.dir_dep,
-                                                   self.cfg.refine_contrast)
+                                                   self.cfg.refine_contrast, stencils=stencils)
         return vals
 
 
