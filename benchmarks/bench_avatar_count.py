@@ -70,6 +70,9 @@ def run(stage: Path, out: Path, frames: str, config: Path | None = None) -> dict
     """One in-process ``usdgs process``: the summary plus per-frame shadow and relight seconds."""
     import usd_gs.pipeline.shot as shot
     from usd_gs.cli import main
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     per_frame: list[float] = []
     names = ("_shadow_pass", "_relight_jobs", "_relight_pass")  # shadows (and probes), relighting
@@ -113,6 +116,9 @@ def run_tasks_serial(stage: Path, out: Path, frames: str, config: Path | None = 
 
     import usd_gs.pipeline.shot as shot
     from usd_gs.cli import main
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     seconds: dict = {}
     frame_no = [0]

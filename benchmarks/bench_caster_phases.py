@@ -31,6 +31,9 @@ from numba_kernels.thread_chunks import run_chunks
 def record_builds(stage: Path, frame: int) -> list:
     """The ``(args, kwargs)`` of every ``build_point`` call while ``usdgs process`` runs ``frame``."""
     from usd_gs.cli import main
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     calls = []
     plain = build.build_point

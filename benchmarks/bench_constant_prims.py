@@ -68,6 +68,9 @@ def Xform "World"
 def build_shot(work: Path, last_frame: int) -> Path:
     """The shot of the module docstring in ``work`` (imports with ``usdgs import``)."""
     from usd_gs.cli import main
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     imports = [(DATA / "scenes" / "luma-seal.splat", "seal", "/World/Seal", "scene", []),
                (DATA / "sequences" / "monkey" / "monkey_####.sog", "monkey", "/World/Monkey", "avatar",
@@ -88,6 +91,9 @@ def run(shot: Path, out: Path, frames: str, held: bool) -> list[float]:
     holding one pose)."""
     import usd_gs.pipeline.shot as shot_mod
     from usd_gs.cli import main
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     times = []
     opened, frame = shot_mod.ShotProcessor._open, shot_mod.ShotProcessor._frame

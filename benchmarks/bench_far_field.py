@@ -40,6 +40,9 @@ def run(stage: Path, out: Path, frames: str, config: dict | None) -> dict:
     import usd_gs.pipeline.shot as shot
     import usd_gs.relight.far_field as far_field
     from usd_gs.cli import main
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     calls, fields = [], []
     plain, init = shot.ShotProcessor._probe_task, far_field.FarField.__init__
