@@ -1,6 +1,7 @@
 """Where the moving casters' DGSMs spend a frame: every ``dgsm_build.build_point`` call of one frame
 of ``usdgs process`` is recorded, then rerun on one thread phase by phase (ROI voxels, culling
-footprints, tile lists, accumulation, plain and refined lookups), with the counts that drive each.
+footprints, tile lists, accumulation, plain and refined lookups, the refined ones reading the ROI's
+stencils as the main job's do), with the counts that drive each.
 
     PYTHONPATH=.:benchmarks .venv/bin/python benchmarks/bench_caster_phases.py [--stage stages/demo.usda]
         [--frame 5] [--repeat 3]
@@ -65,7 +66,11 @@ def phases(args, repeat: int) -> dict:
     light, occ, dir_dep, cov6, pts, width, K, t_max, k_sigma = args[:9]
     t_max = build.t_max_for(build.far_distance(light, pts), K) if t_max is None else t_max
     row = {}
-    row["roi"], (pixels, kmin, kmax) = _best(lambda: build.roi_voxels(light, pts, width, K, t_max), repeat)
+    def roi():
+        st = build.point_stencils(light, pts, width, K, t_max)
+        return st, build.stencil_roi(st, width)
+
+    row["roi"], (stencils, (pixels, kmin, kmax)) = _best(roi, repeat)
     wt = width // build.TILE
     active = np.zeros(wt * wt, np.bool_)
     active[(pixels // width // build.TILE) * wt + (pixels % width) // build.TILE] = True
@@ -89,8 +94,8 @@ def phases(args, repeat: int) -> dict:
     reference = build.build_point(*args)
     assert np.array_equal(reference.values, atlas.values) and np.array_equal(reference.pixels, atlas.pixels)
     row["lookups"], plain = _best(lambda: sample.lookup_point(atlas, light, pts), repeat)
-    row["refined lookups"], (vals, refined) = _best(
-        lambda: sample.lookup_point_refined(atlas, light, pts, occ, dir_dep), repeat)
+    row["refined lookups"], (vals, refined) = _best(  # (reading the ROI's stencils, as the main job does)
+        lambda: sample.lookup_point_refined(atlas, light, pts, occ, dir_dep, stencils=stencils), repeat)
     assert np.array_equal(vals, sample.lookup_point_refined(reference, light, pts, occ, dir_dep)[0])
     row.update(occluders=n, points=len(pts), pixels=len(pixels), tile_items=len(items), pairs=int(pairs.sum()),
                refined=int(refined.sum()))
