@@ -31,11 +31,6 @@ from .quaternion import quat_to_rotation
 from .thread_chunks import run_chunks
 
 
-@njit(cache=True, fastmath=False)
-def _voxel(index, values, w, kmin, kmax, pi, pj, k):
-    return _voxel_at(index, values, kmin, kmax, pi * w + pj, k)
-
-
 @njit(cache=True, fastmath=False, inline="always")
 def _voxel_at(index, values, kmin, kmax, p, k):
     r = index[p]
@@ -76,21 +71,32 @@ def lookup_one_range(index, values, w, K, t_max, kmin, kmax, ox, oy, oz, x, y, z
         wk = fk - k0
     i0 = int(i0)
     j0 = int(j0)
-    k0 = int(k0)
+    a0, b0 = wrap_pixel(i0, j0, w)
+    a1, b1 = wrap_pixel(i0, j0 + 1, w)
+    a2, b2 = wrap_pixel(i0 + 1, j0, w)
+    a3, b3 = wrap_pixel(i0 + 1, j0 + 1, w)
+    return _blend_voxels(index, values, kmin, kmax, a0 * w + b0, a1 * w + b1, a2 * w + b2, a3 * w + b3, wx, wy, wk,
+                         int(k0))
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def _blend_voxels(index, values, kmin, kmax, p00, p01, p10, p11, wx, wy, wk, k0):
+    """The trilinear blend of :func:`lookup_one_range` over the flat pixel ids ``p<di><dj>`` of the
+    corners (i0 + di, j0 + dj), bins ``k0`` and ``k0 + 1``: ``(value, min, max of the voxels used)``."""
     acc = 0.0
     lo = 1.0
     hi = 0.0
-    for di in range(2):
-        for dj in range(2):
-            wij = (wx if di else 1.0 - wx) * (wy if dj else 1.0 - wy)
-            if wij == 0.0:
-                continue
-            pi, pj = wrap_pixel(i0 + di, j0 + dj, w)
-            a = _voxel(index, values, w, kmin, kmax, pi, pj, k0)
-            b = _voxel(index, values, w, kmin, kmax, pi, pj, k0 + 1) if wk > 0.0 else a
-            acc += wij * ((1.0 - wk) * a + wk * b)
-            lo = min(lo, a, b)
-            hi = max(hi, a, b)
+    for c in range(4):
+        di, dj = c >> 1, c & 1
+        wij = (wx if di else 1.0 - wx) * (wy if dj else 1.0 - wy)
+        if wij == 0.0:
+            continue
+        p = p00 if c == 0 else (p01 if c == 1 else (p10 if c == 2 else p11))
+        a = _voxel_at(index, values, kmin, kmax, p, k0)
+        b = _voxel_at(index, values, kmin, kmax, p, k0 + 1) if wk > 0.0 else a
+        acc += wij * ((1.0 - wk) * a + wk * b)
+        lo = min(lo, a, b)
+        hi = max(hi, a, b)
     return min(max(acc, 0.0), 1.0), lo, hi
 
 
@@ -142,22 +148,9 @@ def _lookup_flag_stencils(i0_, i1_, index, values, w, kmin, kmax, light, pts, pi
             refined[m] = False
             tile[m] = -1
             continue
-        wx, wy, wk = wts[m, 0], wts[m, 1], wts[m, 2]
-        acc = 0.0
-        lo = 1.0
-        hi = 0.0
-        for di in range(2):
-            for dj in range(2):
-                wij = (wx if di else 1.0 - wx) * (wy if dj else 1.0 - wy)
-                if wij == 0.0:
-                    continue
-                p = pix[m, 2 * di + dj]
-                a = _voxel_at(index, values, kmin, kmax, p, k0)
-                b = _voxel_at(index, values, kmin, kmax, p, k0 + 1) if wk > 0.0 else a
-                acc += wij * ((1.0 - wk) * a + wk * b)
-                lo = min(lo, a, b)
-                hi = max(hi, a, b)
-        out[m] = min(max(acc, 0.0), 1.0)
+        val, lo, hi = _blend_voxels(index, values, kmin, kmax, pix[m, 0], pix[m, 1], pix[m, 2], pix[m, 3],
+                                    wts[m, 0], wts[m, 1], wts[m, 2], k0)
+        out[m] = val
         refined[m] = hi - lo > contrast
         if refined[m]:
             u, v = oct_encode(pts[m, 0] - ox, pts[m, 1] - oy, pts[m, 2] - oz)
