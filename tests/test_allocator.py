@@ -79,3 +79,19 @@ def test_default_turns_everything_off():
     got = _run({"USDGS_ALLOCATOR": "Default"})
     assert got["done"] == {}
     assert got["hugepage"] is True  # numpy's own default on Linux kernels >= 4.6
+
+
+def test_an_unknown_choice_is_a_user_error_naming_it(monkeypatch):
+    from usd_gs.errors import UserError
+    from usd_gs.pipeline.allocator import tune_for_batch
+
+    monkeypatch.setenv("USDGS_ALLOCATOR", "fast")
+    with pytest.raises(UserError, match="USDGS_ALLOCATOR='fast': use 'batch'"):
+        tune_for_batch()
+
+
+def test_the_console_script_exits_2_on_an_unknown_choice(tmp_path):
+    env = dict(os.environ, USDGS_ALLOCATOR="fast")
+    r = subprocess.run([sys.executable, "-m", "usd_gs.cli", "process", str(tmp_path / "none.usda")], env=env,
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "USDGS_ALLOCATOR='fast'" in r.stderr

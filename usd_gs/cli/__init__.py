@@ -116,11 +116,11 @@ def _main(argv: list[str], process_entry: bool = False) -> int:
     from usd_gs.usd.stage import set_allow_missing
 
     set_allow_missing(bool(getattr(args, "allow_missing", False)))
-    if process_entry and args.command in BATCH_COMMANDS:  # (not for a caller's own process)
-        from usd_gs.pipeline.allocator import tune_for_batch
-
-        tune_for_batch()
     try:
+        if process_entry and args.command in BATCH_COMMANDS:  # (not for a caller's own process)
+            from usd_gs.pipeline.allocator import tune_for_batch
+
+            tune_for_batch()
         rc = int(args.handler(args) or 0)
         if rc == 0 and process_entry and getattr(args, "quick_exit", False):
             _exit_now()

@@ -21,8 +21,9 @@ region can stall on synchronous memory compaction when no huge page is free (num
 
 Each setting is left alone where the user chose it (the environment variables
 ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``, ``NUMPY_MADVISE_HUGEPAGE``), and all of
-them with ``USDGS_ALLOCATOR=default``. Off glibc (macOS, musl) only the numpy setting applies.
-Values do not change, only where memory comes from.
+them with ``USDGS_ALLOCATOR=default`` (``batch``, or unset: these settings; any other value is a
+``UserError``). Off glibc (macOS, musl) only the numpy setting applies. Values do not change,
+only where memory comes from.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ import ctypes
 import ctypes.util
 import os
 import sys
+
+from usd_gs.errors import UserError
 
 #: glibc's mallopt parameters (malloc.h)
 M_TRIM_THRESHOLD = -1
@@ -54,9 +57,13 @@ def _libc():
 def tune_for_batch() -> dict:
     """Apply the settings of the module docstring to this process; returns what was set
     (``{"mmap_threshold": bytes, "trim_threshold": bytes, "numpy_hugepage": False}``, each key only
-    where it was applied)."""
+    where it was applied). ``UserError`` for a ``USDGS_ALLOCATOR`` other than ``batch`` or ``default``."""
     done: dict = {}
-    if os.environ.get(ENV, "").strip().lower() == "default":
+    choice = os.environ.get(ENV, "").strip().lower()
+    if choice not in ("", "batch", "default"):
+        raise UserError(f"{ENV}={os.environ[ENV]!r}: use 'batch' (the default: freed buffers kept, no huge-page "
+                        "advice) or 'default' (glibc's and numpy's own settings)")
+    if choice == "default":
         return done
     libc = _libc()
     if libc is not None:
