@@ -268,3 +268,47 @@ def test_moving_casters_pack_and_bound_each_prim_once_for_every_task():
         assert receivers.keys() == {"/A", "/B"} and all(
             np.array_equal(receivers[p][0], spheres[p][0]) and receivers[p][1] == spheres[p][1] for p in receivers)
     assert movers.bound("/C")[1] == occluder_sphere(sets["/C"], cfg.k_sigma)[1]
+
+
+def test_reading_the_next_frame_ahead_gives_the_plain_reads(tmp_path, monkeypatch, capsys):
+    """The moving prims of frame f + 1 are read beside frame f's shadow tasks: the output is the one
+    of reading each frame at its start, and an error in frame 3's data stops the run as it did
+    (exit 2, the same message)."""
+    from pxr import Gf, Usd, UsdGeom
+
+    import usd_gs.pipeline.shot as shot
+
+    path = _shot(tmp_path / "shot.usda")
+    argv = ["process", str(path), "--avatar", "/World/Avatar", "--avatar", "/World/Second", "--lights", "stage",
+            "--aovs", "transmittance,lightScale", "--precision", "float", "--sh-tolerance", "0", "-q"]
+    served, plain_frame = [], shot.ShotProcessor._frame
+
+    def frame(self, f, *a):
+        if self._ahead is not None and self._ahead[0] == f and self._ahead[2] is None:
+            served.append(f)
+        return plain_frame(self, f, *a)
+
+    with monkeypatch.context() as m:
+        m.setattr(shot.ShotProcessor, "_frame", frame)
+        assert main([*argv, "-o", str(tmp_path / "ahead.usdc")]) == 0
+    assert served == [2.0, 3.0]
+    with monkeypatch.context() as m:
+        m.setattr(shot.ShotProcessor, "_read_ahead", lambda self, f: None)
+        assert main([*argv, "-o", str(tmp_path / "plain.usdc")]) == 0
+    assert stage_differences(tmp_path / "ahead.usdc", tmp_path / "plain.usdc", [1, 2, 3]) == []
+
+    stage = Usd.Stage.Open(str(path))  # frame 3's translation not finite
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World/Second")).GetOrderedXformOps()[0].Set(
+        Gf.Vec3d(float("nan"), 0, 0), Usd.TimeCode(3))
+    stage.GetRootLayer().Export(str(tmp_path / "bad.usda"))
+    bad = [argv[0], str(tmp_path / "bad.usda"), *argv[2:]]
+    capsys.readouterr()
+    assert main([*bad, "-o", str(tmp_path / "bad_ahead.usdc")]) == 2
+    ahead_err = capsys.readouterr().err
+    with monkeypatch.context() as m:
+        m.setattr(shot.ShotProcessor, "_read_ahead", lambda self, f: None)
+        assert main([*bad, "-o", str(tmp_path / "bad_plain.usdc")]) == 2
+    plain_err = capsys.readouterr().err
+    assert "/World/Second (time 3)" in ahead_err
+    assert ahead_err.replace("bad_ahead", "X") == plain_err.replace("bad_plain", "X")
+    assert not (tmp_path / "bad_ahead.usdc").exists()

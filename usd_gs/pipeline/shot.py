@@ -355,6 +355,8 @@ class ShotProcessor:
         self._samples: dict = {}  # (prim, samples, count) -> its nearest-sample map (_sample_map)
         self._static_normals: np.ndarray | None = None  # static receivers' normals (_sky_hidden)
         self._frame_now: float | None = None  # the frame being processed
+        # (frame, the moving prims' sets or None, the error reading them or None): read ahead (_read_ahead)
+        self._ahead: tuple | None = None
         self._calib_centre = None  # where estimated lights are calibrated (_calibration_centre)
         # what the run did
         self.affected: dict[str, int] = {}
@@ -560,7 +562,13 @@ class ShotProcessor:
         The authoring is left for the next frame's shadow tasks to overlap (:meth:`flush_writes`)."""
         self._frame_now = frame
         t = time.perf_counter()
-        dyn = {p: self._read(p, frame) for p in self._moving_paths}
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[0] == frame:
+            if ahead[2] is not None:  # (raised where the plain read would have raised it)
+                raise ahead[2]
+            dyn = ahead[1]
+        else:
+            dyn = {p: self._read(p, frame) for p in self._moving_paths}
         sets = {**self.static, **dyn}
         self.clock.add("read", t)
         lights = self._lights(frame)
@@ -571,15 +579,37 @@ class ShotProcessor:
         self.clock.add("relight", t)
         # the probe renders and transfers need no shadow map: they run beside the shadow tasks
         # the previous frame's probe files and authoring run on this thread while this frame's shadow tasks run
+        # and the next frame's moving prims are read ahead there too (a serial step less between frames)
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
                                                [partial(self._probe_task, path, job) for path, job in jobs],
-                                               meanwhile=self.flush_writes, extra_keys=[p for p, _ in jobs])
+                                               meanwhile=partial(self._beside_tasks, frame),
+                                               extra_keys=[p for p, _ in jobs])
         t = time.perf_counter()
         relit, probes = self._relight_pass(jobs, transfers, lights, shadows)
         self.clock.add("relight", t)
         direct = self.opts.direct_fraction if self.opts.direct_fraction is not None else self._direct_fraction()
         self._pending_writes.append(partial(self._write_frame, frame, author, probe_dir, probes, sets, shadows,
                                             relit, direct))
+
+    def _beside_tasks(self, frame: float) -> float:
+        """What runs on this thread while ``frame``'s shadow tasks run: the writes left pending
+        (:meth:`flush_writes`), then :meth:`_read_ahead` of the next frame. Returns its seconds."""
+        seconds = self.flush_writes()
+        at = self.frames.index(frame) if frame in self.frames else -1
+        if 0 <= at < len(self.frames) - 1:
+            t = time.perf_counter()
+            self._read_ahead(self.frames[at + 1])
+            seconds += self.clock.add("read", t) - t
+        return seconds
+
+    def _read_ahead(self, frame: float) -> None:
+        """The moving prims' sets at ``frame`` (the next frame to process), kept for :meth:`_frame`
+        (``_read`` is a pure function of the prim and the time: the same sets). An error reading
+        them is kept too and raised when that frame reads, so a run stops at the same frame."""
+        try:
+            self._ahead = (frame, {p: self._read(p, frame) for p in self._moving_paths}, None)
+        except Exception as exc:  # noqa: BLE001 - re-raised by _frame
+            self._ahead = (frame, None, exc)
 
     def _hold_frame(self, frame: float) -> bool:
         """True when ``frame`` holds the last processed frame's results, which then stand for it (nothing
