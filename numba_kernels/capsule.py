@@ -41,6 +41,20 @@ def _distance2(p, m, a, u, length):
     return vx * vx + vy * vy + vz * vz
 
 
+@njit(inline="always")
+def _block_side(dc, rb, radius, reach_lo, reach_hi):
+    """1 when every point within ``rb`` of a centre ``dc`` from the segment lies within ``radius`` plus
+    its own reach (at least ``reach_lo``), -1 when every one lies beyond ``radius`` plus its reach
+    (at most ``reach_hi``), 0 when the block must be tested point by point; decided only by more
+    than a relative 1e-9, far above the rounding of the per-point test (NaN reaches: 0)."""
+    tol = 1e-9 * (abs(radius) + dc + rb + abs(reach_lo) + abs(reach_hi))
+    if dc + rb < radius + reach_lo - tol:
+        return 1
+    if dc - rb > radius + reach_hi + tol:
+        return -1
+    return 0
+
+
 @njit(cache=True, **threaded(), fastmath=False)
 def _within(i0, i1, p, extra, a, u, length, radius, out):
     for m in range(i0, i1):
@@ -115,13 +129,9 @@ def _within_ball_blocks(b0, b1, p, starts, centres, radii, a, radius, out):
         s, e = starts[b], starts[b + 1]
         if e <= s:
             continue
-        dx, dy, dz = centres[b, 0] - a[0], centres[b, 1] - a[1], centres[b, 2] - a[2]
-        dc = math.sqrt(dx * dx + dy * dy + dz * dz)
-        tol = 1e-9 * (radius + dc + radii[b])  # far above the rounding of the per-point test
-        if dc + radii[b] < radius - tol:  # the whole block inside
-            out[s:e] = True
-        elif dc - radii[b] > radius + tol:  # the whole block outside
-            out[s:e] = False
+        side = _block_side(math.sqrt(_distance2(centres, b, a, zero, 0.0)), radii[b], radius, 0.0, 0.0)
+        if side != 0:
+            out[s:e] = side > 0
         else:
             for m in range(s, e):
                 out[m] = _distance2(p, m, a, zero, 0.0) <= r2
@@ -147,12 +157,10 @@ def _within_scaled_blocks(b0, b1, p, scales, factor, starts, centres, radii, rea
         s, e = starts[b], starts[b + 1]
         if e <= s:
             continue
-        dc = math.sqrt(_distance2(centres, b, a, u, length))
-        tol = 1e-9 * (abs(radius) + dc + radii[b] + abs(reach_lo[b]) + abs(reach_hi[b]))
-        if dc + radii[b] < radius + reach_lo[b] - tol:  # every point within its own reach
-            out[s:e] = True
-        elif dc - radii[b] > radius + reach_hi[b] + tol:  # every point beyond it
-            out[s:e] = False
+        side = _block_side(math.sqrt(_distance2(centres, b, a, u, length)), radii[b], radius, reach_lo[b],
+                           reach_hi[b])
+        if side != 0:
+            out[s:e] = side > 0
         else:
             for m in range(s, e):
                 r = radius + np.float64(factor * max(scales[m, 0], scales[m, 1], scales[m, 2]))

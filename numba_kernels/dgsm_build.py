@@ -104,6 +104,10 @@ class Stencils(NamedTuple):
     wts: np.ndarray  # (M, 3) float64 the weights (wx, wy, wk) of dgsm_sample.lookup_one_range
     k0: np.ndarray  # (M,) int64 its lower bin: -1 before the first bin centre, -2 for a point at the light
 
+    def rows(self, sub: slice) -> Stencils:
+        """The stencils of the points ``sub`` (a slice: views, no copy)."""
+        return Stencils(*(a[sub] for a in self))
+
 
 @njit(cache=True, **threaded(), fastmath=False)
 def _stencils(i0_, i1_, light, pts, w, K, t_max, pix, kk, wts, k0s):

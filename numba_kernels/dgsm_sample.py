@@ -116,22 +116,25 @@ def lookup_point(atlas, light, points) -> np.ndarray:
     return out
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _culling_tile(pts, m, light, w):
+    """The flat id of the 8x8 culling tile (``dgsm_build.bin_tiles``) of point ``pts[m]``'s direction."""
+    wt = w // 8
+    u, v = oct_encode(pts[m, 0] - light[0], pts[m, 1] - light[1], pts[m, 2] - light[2])
+    fx, fy = uv_to_pixel_coords(u, v, w)
+    ti, tj = wrap_pixel(int(math.floor(fx / 8.0)), int(math.floor(fy / 8.0)), wt)
+    return ti * wt + tj
+
+
 @njit(cache=True, **threaded(), fastmath=False)
 def _lookup_flag(i0_, i1_, index, values, w, K, t_max, kmin, kmax, light, pts, contrast, out, refined, tile):
-    wt = w // 8
     ox, oy, oz = light[0], light[1], light[2]
     for m in range(i0_, i1_):
-        x, y, z = pts[m, 0], pts[m, 1], pts[m, 2]
-        val, lo, hi = lookup_one_range(index, values, w, K, t_max, kmin, kmax, ox, oy, oz, x, y, z)
+        val, lo, hi = lookup_one_range(index, values, w, K, t_max, kmin, kmax, ox, oy, oz, pts[m, 0], pts[m, 1],
+                                       pts[m, 2])
         out[m] = val
         refined[m] = hi - lo > contrast
-        if refined[m]:
-            u, v = oct_encode(x - ox, y - oy, z - oz)
-            fx, fy = uv_to_pixel_coords(u, v, w)
-            ti, tj = wrap_pixel(int(math.floor(fx / 8.0)), int(math.floor(fy / 8.0)), wt)
-            tile[m] = ti * wt + tj
-        else:
-            tile[m] = -1
+        tile[m] = _culling_tile(pts, m, light, w) if refined[m] else -1
 
 
 @njit(cache=True, **threaded(), fastmath=False)
@@ -139,8 +142,6 @@ def _lookup_flag_stencils(i0_, i1_, index, values, w, kmin, kmax, light, pts, pi
                           tile):
     """:func:`_lookup_flag` from the points' ``dgsm_build.Stencils`` (``pix``, ``wts``, ``k0s``):
     the same blend, in the same order, of the same voxels with the same weights."""
-    wt = w // 8
-    ox, oy, oz = light[0], light[1], light[2]
     for m in range(i0_, i1_):
         k0 = k0s[m]
         if k0 == -2:  # at the light
@@ -152,13 +153,7 @@ def _lookup_flag_stencils(i0_, i1_, index, values, w, kmin, kmax, light, pts, pi
                                     wts[m, 0], wts[m, 1], wts[m, 2], k0)
         out[m] = val
         refined[m] = hi - lo > contrast
-        if refined[m]:
-            u, v = oct_encode(pts[m, 0] - ox, pts[m, 1] - oy, pts[m, 2] - oz)
-            fx, fy = uv_to_pixel_coords(u, v, w)
-            ti, tj = wrap_pixel(int(math.floor(fx / 8.0)), int(math.floor(fy / 8.0)), wt)
-            tile[m] = ti * wt + tj
-        else:
-            tile[m] = -1
+        tile[m] = _culling_tile(pts, m, light, w) if refined[m] else -1
 
 
 @njit(cache=True, fastmath=False)

@@ -48,6 +48,15 @@ def within_ball(blocks: PointBlocks | None, positions: np.ndarray, centre, radiu
     return blocks.within(positions, centre, radius)
 
 
+def within_reach(blocks: PointBlocks | None, positions: np.ndarray, a, b, radius: float, scales: np.ndarray,
+                 factor: float) -> np.ndarray:
+    """(N,) bool ``within_capsule_scaled(positions, a, b, radius, scales, factor)``: block by block with
+    ``blocks`` (:meth:`PointBlocks.within_capsule_scaled`), row by row without."""
+    if blocks is None:
+        return within_capsule_scaled(positions, a, b, radius, scales, factor)
+    return blocks.within_capsule_scaled(positions, a, b, radius, scales, factor)
+
+
 class PointBlocks:
     """The rows ``0 .. starts[-1]`` of a point set in blocks (``starts`` from :func:`block_starts`);
     the positions are passed to each call (the same values every time: the spheres are computed

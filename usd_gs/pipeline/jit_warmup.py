@@ -239,7 +239,7 @@ def warm_up(groups=GROUPS) -> None:
         keep = ~within_capsule(scene.positions, light.position, light.position, opts.emitter_radius)  # _emitter_keep
         atlas = StaticSceneAtlas(scene, light.position, centre_cfg, keep=keep,
                                  blocks=PointBlocks(block_starts([(0, scene.count)])))
-        # (the light estimation's sun test, where no capsule test of the atlas now compiles it)
+        # (the per-point capsule test of the sun estimation's off-ray Gaussians; the atlas's goes by bricks)
         within_capsule_scaled(scene.positions, light.position, np.zeros(3), 1.0, scene.scales, 3.0)
         for _ in range(2):  # (the second lookup is a later frame's: its reach test)
             atlas.transmittance(part[1])

@@ -568,7 +568,7 @@ class ShotProcessor:
                 raise ahead[2]
             dyn = ahead[1]
         else:
-            dyn = {p: self._read(p, frame) for p in self._moving_paths}
+            dyn = self._read_moving(frame)
         sets = {**self.static, **dyn}
         self.clock.add("read", t)
         lights = self._lights(frame)
@@ -595,19 +595,23 @@ class ShotProcessor:
         """What runs on this thread while ``frame``'s shadow tasks run: the writes left pending
         (:meth:`flush_writes`), then :meth:`_read_ahead` of the next frame. Returns its seconds."""
         seconds = self.flush_writes()
-        at = self.frames.index(frame) if frame in self.frames else -1
-        if 0 <= at < len(self.frames) - 1:
+        later = self.frames[self.frames.index(frame) + 1:] if frame in self.frames else []
+        if later:
             t = time.perf_counter()
-            self._read_ahead(self.frames[at + 1])
+            self._read_ahead(later[0])
             seconds += self.clock.add("read", t) - t
         return seconds
 
+    def _read_moving(self, frame: float) -> dict:
+        """path -> the moving prim's set at ``frame`` (:meth:`_read`)."""
+        return {p: self._read(p, frame) for p in self._moving_paths}
+
     def _read_ahead(self, frame: float) -> None:
-        """The moving prims' sets at ``frame`` (the next frame to process), kept for :meth:`_frame`
+        """:meth:`_read_moving` of ``frame`` (the next frame to process), kept for :meth:`_frame`
         (``_read`` is a pure function of the prim and the time: the same sets). An error reading
         them is kept too and raised when that frame reads, so a run stops at the same frame."""
         try:
-            self._ahead = (frame, {p: self._read(p, frame) for p in self._moving_paths}, None)
+            self._ahead = (frame, self._read_moving(frame), None)
         except Exception as exc:  # noqa: BLE001 - re-raised by _frame
             self._ahead = (frame, None, exc)
 

@@ -68,7 +68,9 @@ def direct_irradiance(light, positions: np.ndarray, normals: np.ndarray) -> np.n
     count = np.asarray(positions).reshape(-1, 3).shape[0]
     if form == "dome" or count == 0:
         return np.zeros((count, 3))
-    if form not in ("distant", "rect", "disk") and not (form == "sphere" and light.radius > 0):  # a point
+    area = form in ("rect", "disk")
+    sphere = form == "sphere" and light.radius > 0
+    if form != "distant" and not area and not sphere:  # a point (a sphere of radius 0): one threaded pass
         from numba_kernels.point_irradiance import point_irradiance
 
         return point_irradiance(positions, normals, light.position, light.radiant_intensity())
@@ -84,7 +86,7 @@ def direct_irradiance(light, positions: np.ndarray, normals: np.ndarray) -> np.n
             return np.maximum(cos, 0.0)[:, None] * e[None, :]
         normal = math.pi * math.sin(half) ** 2  # the disc's irradiance at normal incidence per unit radiance
         return (cap_irradiance(cos, math.sin(half)) / normal)[:, None] * e[None, :]
-    if form in ("rect", "disk"):
+    if area:
         pts, da = _area_samples(light)
         z = np.asarray(light.axes, np.float64)[:, 2]
         lrad = np.asarray(light.radiance(), np.float64)
@@ -97,7 +99,7 @@ def direct_irradiance(light, positions: np.ndarray, normals: np.ndarray) -> np.n
             cos_e = np.maximum((w @ z) / r, 0.0)  # emits along -Z: receivers where w . z > 0
             acc += cos_r * cos_e / r2
         return (acc * da)[:, None] * lrad[None, :]
-    d = np.asarray(light.position, np.float64) - x
+    d = np.asarray(light.position, np.float64) - x  # sphere
     r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
     r = np.sqrt(r2)
     cos = np.einsum("ij,ij->i", n, d) / r

@@ -102,7 +102,9 @@ class DGSM:
     light: (3,) float64 light position (point light) or unit propagation direction
     (directional); atlas: ``dgsm_build.Atlas`` or ``dgsm_directional.DirAtlas``; roi: (R,)
     int64 receiver indices in the ROI; points: (R*n, 3) float64 footprint sample points;
-    weights: (n,) footprint weights; timings: seconds per stage.
+    weights: (n,) footprint weights; timings: seconds per stage; stencils: None, or the points'
+    ``dgsm_build.Stencils`` in a point-light atlas (what its build computed for them), which the
+    refined lookups read instead of computing them again.
     """
 
     light: np.ndarray
@@ -113,6 +115,7 @@ class DGSM:
     config: DGSMConfig
     timings: dict = field(default_factory=dict)
     prepared: tuple | None = None  # (occ, dir_dep, cov6) the atlas was built from
+    stencils: dgsm_build.Stencils | None = None
 
 
 def _wrap_errors(label: str, fn, *args, **kw):
@@ -217,7 +220,7 @@ def build_dgsm(occluders: GaussianSet, receivers: GaussianSet, light, cfg: DGSMC
                          cfg.t_max, cfg.k_sigma, cfg.use_roi, cfg.use_tile_culling, cfg.bin_skip)
     t3 = time.perf_counter()
     return DGSM(light, atlas, idx, pts, w, cfg, {"prepare_occluders": t1 - t0, "roi_and_points": t2 - t1,
-                                                  "atlas": t3 - t2}, (occ, dd, cov6))
+                                                  "atlas": t3 - t2}, (occ, dd, cov6), atlas.stencils)
 
 
 def build_dgsm_directional(occluders: GaussianSet, receivers: GaussianSet, direction,
@@ -250,7 +253,7 @@ def sample_dgsm(dgsm: DGSM) -> np.ndarray:
     elif dgsm.config.refine_contrast is not None and dgsm.prepared is not None:
         occ, dd, _ = dgsm.prepared
         vals, _ = dgsm_sample.lookup_point_refined(dgsm.atlas, dgsm.light, dgsm.points, occ, dd,
-                                                   dgsm.config.refine_contrast)
+                                                   dgsm.config.refine_contrast, stencils=dgsm.stencils)
     else:
         vals = dgsm_sample.lookup_point(dgsm.atlas, dgsm.light, dgsm.points)
     return dgsm_sample.weighted_mean(vals, dgsm.weights)

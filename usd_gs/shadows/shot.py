@@ -210,17 +210,10 @@ def shared_transmittance(occluders: GaussianSet, parts: list, light, cfg: DGSMCo
         return [empty for _ in parts]
     prepared = prepared if prepared is not None else prepare_occluders(occluders, cfg)
     pts = np.ascontiguousarray(np.concatenate([p[1] for p in live]) if len(live) > 1 else live[0][1])
-    # every sample point's transmittance at once where that can be had: exact (a directional light's
-    # cheap case), or a point light's refined lookups that read the stencils its build computed
-    # (a point's value does not depend on the points looked up with it)
-    values = _directional_exact(occluders, light, pts, cfg, prepared) if light.kind == "directional" else None
-    if values is None:
+    exact = _directional_exact(occluders, light, pts, cfg, prepared) if light.kind == "directional" else None
+    if exact is None:
         key, atlas = _build(occluders, prepared, light, pts, cfg)
-        if getattr(atlas, "stencils", None) is not None and cfg.refine_contrast is not None:
-            from numba_kernels.dgsm_sample import lookup_point_refined
-
-            values, _ = lookup_point_refined(atlas, key, pts, prepared[0], prepared[1], cfg.refine_contrast,
-                                             stencils=atlas.stencils)
+        stencils = getattr(atlas, "stencils", None)  # (a point light's: the lookups read what the build computed)
     out, start = [], 0
     for p in parts:
         if p is None:
@@ -229,10 +222,11 @@ def shared_transmittance(occluders: GaussianSet, parts: list, light, cfg: DGSMCo
         idx, ppts, w = p
         sub = slice(start, start + len(ppts))
         start += len(ppts)
-        if values is not None:
-            out.append((idx, weighted_mean(values[sub], w)))
+        if exact is not None:
+            out.append((idx, weighted_mean(exact[sub], w)))
         else:
-            out.append((idx, sample_dgsm(DGSM(key, atlas, idx, pts[sub], w, cfg, prepared=prepared))))
+            out.append((idx, sample_dgsm(DGSM(key, atlas, idx, pts[sub], w, cfg, prepared=prepared,
+                                              stencils=None if stencils is None else stencils.rows(sub)))))
     return out
 
 

@@ -30,10 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from numba_kernels import dgsm_build, dgsm_sample
-from numba_kernels.capsule import within_capsule, within_capsule_scaled
+from numba_kernels.capsule import within_capsule
 from numba_kernels.lattice_lookup import CORNERS, lattice_interpolate, lattice_stencils
 from usd_gs.gaussians import GaussianSet
-from usd_gs.point_blocks import PointBlocks
+from usd_gs.point_blocks import PointBlocks, within_reach
 from usd_gs.shadows.dgsm import DGSMConfig, prepare_occluders
 from usd_gs.shadows.lattice_index import LatticeIndex
 
@@ -194,11 +194,8 @@ class StaticSceneAtlas:
         length = float(np.linalg.norm(centre - self.light))
         far = length + radius + self.t_max / self.K
         margin = self.t_max / self.K + 2.0 * (4.0 / self.width) * far
-        if self._blocks is not None:
-            return self._blocks.within_capsule_scaled(self._all.positions, self.light, centre, radius + margin,
-                                                      self._all.scales, self.cfg.k_sigma)
-        return within_capsule_scaled(self._all.positions, self.light, centre, radius + margin, self._all.scales,
-                                     self.cfg.k_sigma)
+        return within_reach(self._blocks, self._all.positions, self.light, centre, radius + margin, self._all.scales,
+                            self.cfg.k_sigma)
 
     @property
     def computed_pixels(self) -> int:
