@@ -68,9 +68,6 @@ def Xform "World"
 def build_shot(work: Path, last_frame: int, brick_size: int = 0) -> Path:
     """The shot of the module docstring in ``work``; the imports are made once (``usdgs import``)."""
     from usd_gs.cli import main
-    from usd_gs.pipeline.allocator import tune_for_batch
-
-    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     flowers = f"flowers_b{brick_size}.usdc" if brick_size else "flowers.usdc"
     bricks = ["--brick-size", str(brick_size)] if brick_size else []

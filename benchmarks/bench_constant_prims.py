@@ -68,9 +68,6 @@ def Xform "World"
 def build_shot(work: Path, last_frame: int) -> Path:
     """The shot of the module docstring in ``work`` (imports with ``usdgs import``)."""
     from usd_gs.cli import main
-    from usd_gs.pipeline.allocator import tune_for_batch
-
-    tune_for_batch()  # (as the usdgs console script sets the process up)
 
     imports = [(DATA / "scenes" / "luma-seal.splat", "seal", "/World/Seal", "scene", []),
                (DATA / "sequences" / "monkey" / "monkey_####.sog", "monkey", "/World/Monkey", "avatar",
