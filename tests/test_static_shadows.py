@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from dgsm_testutil import random_rotations
 
 from usd_gs.gaussians import GaussianSet
@@ -133,3 +134,56 @@ def test_atlas_of_a_masked_block_is_the_atlas_of_the_subset():
     a = StaticSceneAtlas(scene.subset(keep), LIGHT, cfg).transmittance(pts)
     b = StaticSceneAtlas(scene, LIGHT, cfg, keep=keep, extents=BlockExtents(scene, cfg.k_sigma)).transmittance(pts)
     assert np.array_equal(a.view(np.uint64), b.view(np.uint64)) and (a < 0.5).mean() > 0.1
+
+
+def test_block_extents_of_given_blocks_are_the_subsets_extent_bit_for_bit():
+    """Blocks given with their boxes (the prims' boxes, ``prim_boxes``) instead of fixed chunks:
+    the same bits for every mask, an empty prim among them."""
+    from numba_kernels.extent import block_extents
+    from usd_gs.shadows.shot import Receivers, prim_boxes, prim_spheres
+    from usd_gs.shadows.static_scene import BlockExtents
+    from usd_gs.synthetic import random_gaussians
+
+    sizes = [5000, 0, 70_000, 300, 24_700]
+    parts = [(f"/p{i}", random_gaussians(n, 0, seed=10 + i)) for i, n in enumerate(sizes)]
+    for k, (_, g) in enumerate(parts):
+        g.positions[:, k % 3] += 10.0 * k
+    recv = Receivers.build(parts)
+    g = recv.gaussians
+    starts, boxes, ok = prim_boxes(recv, 3.0)
+    assert starts.tolist() == [0, 5000, 5000, 75_000, 75_300, 100_000] and not ok[1] and ok[[0, 2, 3, 4]].all()
+    want_boxes, _ = block_extents(g.positions, g.orientations, g.scales, starts, 3.0)
+    assert np.array_equal(boxes[ok].view(np.uint64), want_boxes[ok].view(np.uint64))
+    given, chunks = BlockExtents(g, 3.0, starts, boxes, ok), BlockExtents(g, 3.0)
+    rng = np.random.default_rng(8)
+    masks = [None, rng.random(g.count) > 0.4, np.zeros(g.count, bool), np.ones(g.count, bool)]
+    masks.append(np.zeros(g.count, bool))
+    masks[-1][5000:75_000] = True  # one whole prim
+    masks.append(masks[-1].copy())
+    masks[-1][75_010] = True  # and one row of another
+    for keep in masks:
+        a, b = given.of(keep), chunks.of(keep)
+        assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
+        if keep is not None and keep.any():
+            assert np.array_equal(a.view(np.uint32), g.subset(keep).extent(3.0).view(np.uint32))
+    # the spheres from those boxes are the spheres computed on their own, each prim's own extent
+    spheres = prim_spheres(recv, 3.0, (starts, boxes, ok))
+    assert set(spheres) == {"/p0", "/p2", "/p3", "/p4"}
+    for path, (a, b) in recv.ranges.items():
+        if b > a:
+            ext = g.subset(slice(a, b)).extent(3.0).astype(np.float64)
+            np.testing.assert_array_equal(spheres[path][0], 0.5 * (ext[0] + ext[1]))
+            assert spheres[path][1] == 0.5 * float(np.linalg.norm(ext[1] - ext[0]))
+    with pytest.raises(ValueError, match="boxes"):
+        BlockExtents(g, 3.0, starts)
+
+
+def test_occluder_subset_keeps_the_geometry_without_the_colours():
+    from usd_gs.synthetic import random_gaussians
+
+    g = random_gaussians(500, 3, seed=2)
+    idx = np.flatnonzero(np.random.default_rng(0).random(500) > 0.5)
+    sub, occ = g.subset(idx), g.occluder_subset(idx)
+    for name in ("positions", "orientations", "scales", "opacities"):
+        assert np.array_equal(getattr(sub, name), getattr(occ, name)) and getattr(occ, name).flags.c_contiguous
+    assert occ.sh.shape == (idx.size, 1, 3) and not occ.sh.any() and occ.label == g.label and not occ.extras

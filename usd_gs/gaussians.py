@@ -285,6 +285,23 @@ class GaussianSet:
             take(self.logit_opacities), {k: v[index] for k, v in self.extras.items()},
             label=self.label)
 
+    def occluder_subset(self, index) -> GaussianSet:
+        """The rows ``index`` (integer index array, slice or boolean mask) as occluders: positions,
+        orientations, scales and opacities as :meth:`subset` gives them, and zero degree-0 SH (no raw
+        values, no extras): what a shadow map packs, without copying the colours it does not read."""
+        out = object.__new__(GaussianSet)
+
+        def c(a):
+            return np.ascontiguousarray(a, dtype=np.float32)
+        out.positions, out.orientations, out.scales = c(self.positions[index]), c(self.orientations[index]), \
+            c(self.scales[index])
+        out.opacities = c(self.opacities[index])
+        out.sh = np.zeros((out.positions.shape[0], 1, 3), np.float32)
+        out.log_scales = out.logit_opacities = None
+        out.extras = {}
+        out.label = self.label
+        return out
+
     def with_sh_degree(self, degree: int) -> GaussianSet:
         """Same Gaussians with SH truncated or zero-padded to ``degree``."""
         k = sh3dgs.num_coeffs(degree)

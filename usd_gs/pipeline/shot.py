@@ -61,6 +61,7 @@ from usd_gs.shadows.shading import attenuation_factor, combine_lights, light_sha
 from usd_gs.shadows.shot import (
     Receivers,
     occluder_sphere,
+    prim_boxes,
     prim_spheres,
     prims_in_shadow,
     receiver_points,
@@ -495,9 +496,13 @@ class ShotProcessor:
         self._static_recv_paths = [p for p in receivers if p in self.static]
         self._dyn_recv_paths = [p for p in receivers if p not in self.static]
         self._static_recv = self._static_receivers(self._static_recv_paths)
-        self._spheres = prim_spheres(self._static_recv, self.dgsm.k_sigma)
+        boxes = prim_boxes(self._static_recv, self.dgsm.k_sigma)
+        self._spheres = prim_spheres(self._static_recv, self.dgsm.k_sigma, boxes)
         static_casters = [r.path for r in self.roles if not r.per_frame and r.casts_shadows]
         casters = self._static_receivers(static_casters)
+        if casters is self._static_recv and self._centre_cfg.k_sigma == self.dgsm.k_sigma:
+            # the static atlases' extents from the prims' boxes just computed (one pass, not two)
+            self._scene_packs["block extents"] = BlockExtents(casters.gaussians, self.dgsm.k_sigma, *boxes)
         self._scene_block = casters.gaussians if static_casters else None
         self._scene_block_ranges = casters.ranges
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]

@@ -28,6 +28,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "caster_transmittance": "shot",
     "occluder_sphere": "shot",
     "occluders_toward": "shot",
+    "prim_boxes": "shot",
     "prim_spheres": "shot",
     "prims_in_shadow": "shot",
     "receiver_points": "shot",

@@ -248,21 +248,32 @@ def caster_transmittance(occluders: GaussianSet, receivers: Receivers, light, cf
     return shared_transmittance(occluders, [part], light, cfg, prepared)[0]
 
 
-def prim_spheres(receivers: Receivers, k_sigma: float = 3.0) -> dict[str, tuple[np.ndarray, float]]:
-    """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent (prims with
-    Gaussians only). The prims' ranges tile the rows in order, as :meth:`Receivers.build` makes them."""
+def prim_boxes(receivers: Receivers, k_sigma: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(starts (P+1,) int64, boxes (P, 2, 3) float64, ok (P,) bool)``: each receiver prim's
+    ``k_sigma`` extent (``numba_kernels.extent.block_extents`` of its rows, the prims in threads, one
+    pass, no copies; ``ok`` False for an empty prim or a box beyond float32), the prims in the order of
+    ``receivers.ranges``, which tile the rows in order (as :meth:`Receivers.build` makes them). The
+    blocks of ``usd_gs.shadows.static_scene.BlockExtents`` when the same set is the static casters."""
     from numba_kernels.extent import block_extents
 
-    out = {}
     g = receivers.gaussians
-    items = [(path, a, b) for path, (a, b) in receivers.ranges.items() if b > a]
-    if not items:
-        return out
-    # GaussianSet.extent's own kernel on each prim's rows, the prims in threads (one pass, no copies)
-    starts = np.array([a for _, a, _ in items] + [items[-1][2]], np.int64)
+    spans = list(receivers.ranges.values())
+    starts = np.array([a for a, _ in spans] + [spans[-1][1] if spans else 0], np.int64)
     boxes, ok = block_extents(g.positions, g.orientations, g.scales, starts, k_sigma)
-    for i, (path, a, b) in enumerate(items):
-        ext = (boxes[i].astype(np.float32) if ok[i] else g.subset(slice(a, b)).extent(k_sigma)).astype(np.float64)
+    return starts, boxes, ok
+
+
+def prim_spheres(receivers: Receivers, k_sigma: float = 3.0,
+                 boxes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> dict[str, tuple[np.ndarray, float]]:
+    """Bounding sphere (centre (3,), radius) of each receiver prim's ``k_sigma`` extent (prims with
+    Gaussians only), from ``boxes`` (:func:`prim_boxes` of the same arguments; None: computed here)."""
+    starts, box, ok = prim_boxes(receivers, k_sigma) if boxes is None else boxes
+    g = receivers.gaussians
+    out = {}
+    for i, (path, (a, b)) in enumerate(receivers.ranges.items()):
+        if b <= a:
+            continue
+        ext = (box[i].astype(np.float32) if ok[i] else g.subset(slice(a, b)).extent(k_sigma)).astype(np.float64)
         out[path] = (0.5 * (ext[0] + ext[1]), 0.5 * float(np.linalg.norm(ext[1] - ext[0])))
     return out
 

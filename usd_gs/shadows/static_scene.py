@@ -64,19 +64,35 @@ class _ColumnStore:
 
 
 class BlockExtents:
-    """``GaussianSet.extent`` of rows of one large set, from extents of its fixed row chunks
-    computed once (all in one threaded pass, on the first call): :meth:`of` a row mask recomputes
-    only the chunks the mask cuts into. The same
-    bits as the extent of the masked subset (float64 minima and maxima, rounded to float32 once)."""
+    """``GaussianSet.extent`` of rows of one large set ``g``, from the extents of row blocks computed
+    once: fixed chunks of :data:`CHUNK` rows (all in one threaded pass, on the first call), or the
+    blocks ``starts`` (B+1,) (increasing, from 0 to ``g.count``) whose ``boxes`` (B, 2, 3) float64 and
+    ``ok`` (B,) bool a caller already has (``numba_kernels.extent.block_extents`` of those blocks, e.g.
+    ``usd_gs.shadows.shot.prim_boxes``: the prims' boxes). :meth:`of` a row mask recomputes only the
+    blocks the mask cuts into. The same bits as the extent of the masked subset (float64 minima and
+    maxima, rounded to float32 once), whatever the blocks."""
 
     CHUNK = 1 << 16
 
-    def __init__(self, g: GaussianSet, n_sigma: float):
+    def __init__(self, g: GaussianSet, n_sigma: float, starts: np.ndarray | None = None,
+                 boxes: np.ndarray | None = None, ok: np.ndarray | None = None):
         self.g, self.n_sigma = g, float(n_sigma)
-        self._chunks: dict[int, np.ndarray | None] = {}
+        if starts is not None and (boxes is None or ok is None):
+            raise ValueError("BlockExtents: blocks given without their boxes")
+        self._blocks = None if starts is None else (np.asarray(starts, np.int64), boxes, ok)
+
+    def blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(starts, boxes, ok)`` of the blocks (the fixed chunks computed on the first call)."""
+        if self._blocks is None:
+            from numba_kernels.extent import block_extents
+
+            starts = np.append(np.arange(0, self.g.count, self.CHUNK), self.g.count).astype(np.int64)
+            boxes, ok = block_extents(self.g.positions, self.g.orientations, self.g.scales, starts, self.n_sigma)
+            self._blocks = (starts, boxes, ok)
+        return self._blocks
 
     def _box(self, a: int, rows: np.ndarray) -> np.ndarray | None:
-        """The extent of the chunk at ``a``'s ``rows`` (None: none, or not finite)."""
+        """The extent of the block at ``a``'s ``rows`` (None: none, or not finite)."""
         from numba_kernels.extent import gaussian_extent
 
         g = self.g
@@ -89,26 +105,31 @@ class BlockExtents:
         """(2, 3) float32 extent of the rows ``keep`` (N,) bool (None: every row) at least one of
         which is kept; ``GaussianDataError`` as ``GaussianSet.extent`` for a box that overflows."""
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-        if not self._chunks and self.g.count:  # every chunk's box at once, the chunks in threads
-            from numba_kernels.extent import block_extents
-
-            starts = np.append(np.arange(0, self.g.count, self.CHUNK), self.g.count)
-            boxes, ok = block_extents(self.g.positions, self.g.orientations, self.g.scales, starts, self.n_sigma)
-            self._chunks = {int(a): (boxes[i] if ok[i] else None) for i, a in enumerate(starts[:-1])}
-        for a in range(0, self.g.count, self.CHUNK):
-            b = min(a + self.CHUNK, self.g.count)
-            part = None if keep is None else keep[a:b]
-            if part is None or part.all():
-                box = self._chunks[a]
-            else:
-                box = self._box(a, np.flatnonzero(part))
-                if box is None and not part.any():
-                    continue
-            if box is None:  # a box beyond float32: the subset's own extent names the element
-                sub = self.g if keep is None else self.g.subset(keep)
-                return sub.extent(self.n_sigma)
+        if not self.g.count:
+            return np.stack([lo, hi]).astype(np.float32)
+        starts, boxes, ok = self.blocks()
+        sizes = np.diff(starts)
+        if keep is None:
+            kept = sizes
+        else:
+            seen = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
+            kept = seen[starts[1:]] - seen[starts[:-1]]
+        whole = (kept == sizes) & (kept > 0)
+        if not ok[whole].all():  # a box beyond float32: the subset's own extent names the element
+            return self._named_error(keep)
+        if whole.any():
+            lo, hi = boxes[whole, 0].min(axis=0), boxes[whole, 1].max(axis=0)
+        for i in np.flatnonzero((kept > 0) & ~whole):  # the blocks the mask cuts into
+            a, b = int(starts[i]), int(starts[i + 1])
+            box = self._box(a, np.flatnonzero(keep[a:b]))
+            if box is None:
+                return self._named_error(keep)
             lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
         return np.stack([lo, hi]).astype(np.float32)
+
+    def _named_error(self, keep: np.ndarray | None) -> np.ndarray:
+        sub = self.g if keep is None else self.g.subset(keep)
+        return sub.extent(self.n_sigma)
 
 
 class StaticSceneAtlas:
@@ -153,7 +174,7 @@ class StaticSceneAtlas:
 
     def _build(self, keep: np.ndarray) -> None:
         """Pack and bin the occluders ``keep`` (increasing indices); no column computed yet."""
-        sub = self._all if keep.size == self._all.count else self._all.subset(keep)
+        sub = self._all if keep.size == self._all.count else self._all.occluder_subset(keep)
         self.kept = int(keep.size)
         self.builds += 1
         self.occ, self.dir_dep, cov6 = prepare_occluders(sub, self.cfg)
