@@ -214,6 +214,30 @@ def block_spheres(positions, starts) -> tuple[np.ndarray, np.ndarray]:
     return centres, radii
 
 
+@njit(cache=True, **threaded(), fastmath=False)
+def _block_scale_bound(b0, b1, scales, starts, out):
+    for b in range(b0, b1):
+        m_max = 0.0
+        for m in range(starts[b], starts[b + 1]):
+            s0, s1, s2 = abs(np.float64(scales[m, 0])), abs(np.float64(scales[m, 1])), abs(np.float64(scales[m, 2]))
+            if not (s0 == s0 and s1 == s1 and s2 == s2):  # NaN: no bound (max would skip it)
+                m_max = math.nan
+                break
+            m_max = max(m_max, s0, s1, s2)
+        out[b] = m_max
+
+
+def block_scale_bound(scales, starts) -> np.ndarray:
+    """(B,) float64 largest ``|scale|`` of each block of rows (``starts`` as for :func:`block_spheres`;
+    0 for an empty block, NaN for a block with a NaN scale), the rasteriser's cull bound
+    (``numba_kernels.rasterize``: its blocks' ``smax``)."""
+    s = np.ascontiguousarray(scales, np.float32).reshape(-1, 3)
+    st = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    out = np.zeros(max(st.size - 1, 0))
+    run_chunks(_block_scale_bound, out.size, s, st, out, min_chunk=8)
+    return out
+
+
 def within_ball_blocks(positions, starts, spheres, centre, radius: float) -> np.ndarray:
     """``within_capsule(positions, centre, centre, radius)`` bit for bit, with blocks of points
     (``starts``, ``spheres`` as :func:`block_spheres` gives them) that lie wholly inside or outside

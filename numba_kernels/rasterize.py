@@ -216,10 +216,13 @@ def _sh_color(sh, g, dx, dy, dz):
 
 
 @njit(**threaded(), cache=True, fastmath=False, error_model="numpy")
-def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, height, dilation, vis):
+def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, height, dilation, bstart, bmask,
+          vis):
     """Fill ``vis`` int64: per Gaussian (per entry ``k`` of ``order``, Gaussian ``order[k]``, when
     ``order`` is not empty), the bit mask of the cameras whose image its support may touch
-    (conservative).
+    (conservative). Entries ``bstart[b] .. bstart[b+1]-1`` test only the cameras of ``bmask[b]``
+    (:func:`_block_cameras`: the others reject every Gaussian of the block); entries outside the
+    blocks (or with ``bstart`` empty) test every camera.
 
     cams (K, 23) float64 rows: view_rot (9, row-major), view_t (3), fx, fy, cx, cy, near, far,
     guard-band clamp (x/z min, max, y/z min, max), and ``A`` with ``||J||_F <= A / z`` inside the
@@ -238,7 +241,13 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     use_mask = include.shape[0] == n
     use_order = order.shape[0] > 0
     sdil = math.sqrt(max(dilation, 0.0))
+    nb = bstart.shape[0] - 1
+    blk = np.searchsorted(bstart, i0_, side="right") - 1 if nb > 0 else -1
+    every = (np.int64(1) << ncam) - 1
     for k_ in range(i0_, i1_):
+        while 0 <= blk < nb and k_ >= bstart[blk + 1]:
+            blk += 1
+        cand = bmask[blk] if 0 <= blk < nb else every
         g = order[k_] if use_order else k_
         vis[k_] = 0
         if use_mask and not include[g]:
@@ -254,6 +263,8 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
         bits = 0
         qcut = -1.0
         for k in range(ncam):
+            if not (cand >> k) & 1:
+                continue
             z = cams[k, 6] * px + cams[k, 7] * py + cams[k, 8] * pz + cams[k, 11]
             if not (z > cams[k, 16] and z <= cams[k, 17]):
                 continue
@@ -285,6 +296,60 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
             if j1 >= j0 and i1 >= i0:
                 bits |= np.int64(1) << k
         vis[k_] = bits
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _never_below(g0, g1, g2, h, cs, c, radius, smax):
+    """True when ``g . p + h + cs s < 0`` holds for every point ``p`` within ``radius`` of ``c`` and
+    every ``0 <= s <= smax`` (``cs >= 0``): its largest value there, ``g . c + |g| radius + h + cs
+    smax``, is below zero by more than a relative 1e-6 of the terms' sizes (the cull evaluates the
+    same linear form per Gaussian in float64: its rounding is far smaller). False where anything
+    is not finite."""
+    gc = g0 * c[0] + g1 * c[1] + g2 * c[2]
+    gn = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    top = gc + gn * radius + h + cs * smax
+    size = abs(gc) + gn * (abs(c[0]) + abs(c[1]) + abs(c[2]) + radius) + abs(h) + cs * smax
+    return top < -1e-6 * size and math.isfinite(size)
+
+
+@njit(cache=True, error_model="numpy")  # serial: see jit_options.SERIAL_NOTE
+def _block_cameras(cams, width, height, dilation, centres, radii, smax):
+    """(B,) int64 camera bit masks: camera k is left out of block b's mask only when the cull's
+    division-free reject (``_cull``) drops every Gaussian whose centre lies within ``radii[b]`` of
+    ``centres[b]`` and whose largest ``|scale|`` is at most ``smax[b]``: the centre's depth range
+    lies before ``near`` or beyond ``far``, or one of the four sides' reject forms (linear in the
+    centre and the scale) stays negative over the whole ball. Each other camera stays in the mask."""
+    nb = centres.shape[0]
+    ncam = cams.shape[0]
+    sdil = math.sqrt(max(dilation, 0.0))
+    kappa = 1.001 * SQRT_Q_MAX * sdil + 1e-3  # ez = cs smax + kappa z (the cull's bound)
+    out = np.zeros(nb, np.int64)
+    for b in range(nb):
+        c = centres[b]
+        r = radii[b] * (1.0 + 1e-9)
+        s = smax[b]
+        bits = np.int64(0)
+        for k in range(ncam):
+            cs = 1.001 * SQRT_Q_MAX * cams[k, 22]
+            z0, z1, z2, tz = cams[k, 6], cams[k, 7], cams[k, 8], cams[k, 11]
+            # depth z = (z0, z1, z2) . p + tz before near everywhere (z - near < 0), or beyond far (far - z < 0)
+            off = (_never_below(z0, z1, z2, tz - cams[k, 16], 0.0, c, r, 0.0)
+                   or _never_below(-z0, -z1, -z2, cams[k, 17] - tz, 0.0, c, r, 0.0))
+            for axis in range(2):  # u (x, fx, cx, width), then v (y, fy, cy, height)
+                if off:
+                    break
+                q0, q1, q2, tq = cams[k, 3 * axis], cams[k, 3 * axis + 1], cams[k, 3 * axis + 2], cams[k, 9 + axis]
+                f, cc = cams[k, 12 + axis], cams[k, 14 + axis]
+                size = width if axis == 0 else height
+                lo = cc + kappa - 0.5  # before the first pixel centre: f q + cc z + ez - z / 2 < 0
+                hi = size - 0.5 - cc + kappa  # past the last one: (size - 1/2) z - f q - cc z + ez < 0
+                off = (_never_below(f * q0 + lo * z0, f * q1 + lo * z1, f * q2 + lo * z2, f * tq + lo * tz, cs, c, r, s)
+                       or _never_below(hi * z0 - f * q0, hi * z1 - f * q1, hi * z2 - f * q2, hi * tz - f * tq, cs, c,
+                                       r, s))
+            if not off:
+                bits |= np.int64(1) << k
+        out[b] = bits
+    return out
 
 
 @njit(cache=True, error_model="numpy")
@@ -650,6 +715,47 @@ def _blend(o0, o1, rec, depth_bits, tile_start, tile_list, order, tiles_x, tiles
                     trans, depth, processed, evals)
 
 
+def camera_rows(view_rot, view_t, intr, nearfar, width: int, height: int, guard: float = DEFAULT_GUARD):
+    """``(cams (K, 23), clamp (K, 4))`` float64: the cull's camera rows (``_cull``: view_rot (9,
+    row-major), view_t (3), fx, fy, cx, cy, near, far, the guard-band clamp, and ``A`` with ``||J||_F <=
+    A / z`` inside it) and the Jacobian's guard band ``clamp`` (x/z min, max, y/z min, max: the image's
+    extent ``[c - h, c + h]`` widened to ``c +- guard h``), for cameras as :func:`rasterize` takes them
+    (view_rot (K, 3, 3), view_t (K, 3), intr (K, 4), nearfar (K, 2) float64)."""
+    ncam = view_rot.shape[0]
+    lo_x, hi_x = -intr[:, 2] / intr[:, 0], (width - intr[:, 2]) / intr[:, 0]
+    lo_y, hi_y = -intr[:, 3] / intr[:, 1], (height - intr[:, 3]) / intr[:, 1]
+    cx_, hx_ = 0.5 * (lo_x + hi_x), 0.5 * (hi_x - lo_x)
+    cy_, hy_ = 0.5 * (lo_y + hi_y), 0.5 * (hi_y - lo_y)
+    clamp = np.ascontiguousarray(np.stack([cx_ - guard * hx_, cx_ + guard * hx_, cy_ - guard * hy_,
+                                           cy_ + guard * hy_], axis=1))
+    # ||J||_F^2 = (fx/z)^2 (1 + tx^2) + (fy/z)^2 (1 + ty^2) with tx, ty within the clamp: A^2 / z^2 at most
+    tmax_x = np.maximum(np.abs(clamp[:, 0]), np.abs(clamp[:, 1]))
+    tmax_y = np.maximum(np.abs(clamp[:, 2]), np.abs(clamp[:, 3]))
+    jbound = np.sqrt(intr[:, 0] ** 2 * (1.0 + tmax_x**2) + intr[:, 1] ** 2 * (1.0 + tmax_y**2))
+    cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp,
+                                                jbound[:, None]], axis=1))
+    return cams, clamp
+
+
+def _block_masks(blocks, order, n, cams, width, height, dilation):
+    """``(bstart, bmask)`` for ``_cull``: the blocks' starts among the entries the cull goes over (the
+    rows themselves, or their places in ``order``) and each block's cameras; empty without blocks."""
+    if blocks is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    starts, centres, radii, smax = blocks
+    starts = np.ascontiguousarray(starts, np.int64).reshape(-1)
+    nb = starts.size - 1
+    centres = np.ascontiguousarray(centres, np.float64).reshape(-1, 3)
+    radii = np.ascontiguousarray(radii, np.float64).reshape(-1)
+    smax = np.ascontiguousarray(smax, np.float64).reshape(-1)
+    if nb < 1 or centres.shape[0] != nb or radii.shape[0] != nb or smax.shape[0] != nb or starts[0] != 0 \
+            or starts[-1] > n or np.any(np.diff(starts) < 0):
+        raise ValueError(f"rasterize: blocks must be B+1 increasing starts from 0 to at most {n} rows with B "
+                         "centres, radii and largest scales")
+    bstart = np.searchsorted(order, starts).astype(np.int64) if order.shape[0] else starts
+    return bstart, _block_cameras(cams, int(width), int(height), float(dilation), centres, radii, smax)
+
+
 def _aligned_empty(shape, dtype, align=64):
     """np.empty whose data pointer is a multiple of ``align`` bytes."""
     dtype = np.dtype(dtype)
@@ -666,7 +772,7 @@ def _tile_order(ntiles: int) -> np.ndarray:
 
 def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, nearfar, cam_pos,
               width, height, include=None, dilation=DEFAULT_DILATION, guard=DEFAULT_GUARD, tile=TILE,
-              antialiased=False, order=None):
+              antialiased=False, order=None, blocks=None):
     """Render N Gaussians into K cameras of equal size (see module docstring).
 
     positions (N,3), quats (N,4) (w,x,y,z), scales (N,3) linear sigma, opacities (N,) linear,
@@ -680,6 +786,12 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     scale each splat's opacity by sqrt(det(Sigma2 - dilation I) / det(Sigma2)) so the dilation
     blurs small Gaussians without adding light (gsplat's "antialiased" mode; for renders whose
     radiance is measured, such as probes: a sub-pixel lamp keeps its energy).
+    blocks: None, or ``(starts (B+1,) int64, centres (B, 3), radii (B,), smax (B,))`` float64: rows
+    ``starts[b] .. starts[b+1]-1`` (increasing from 0; rows from ``starts[B]`` on belong to no block)
+    have their centres within ``radii[b]`` of ``centres[b]`` and their largest ``|scale|`` at most
+    ``smax[b]`` (NaN: unknown). The cull then skips, for a whole block, the cameras whose reject
+    test would drop every Gaussian in it (``_block_cameras``): the same image, bit for bit, and
+    fewer tests where a block lies in a few of the cameras (a cube render's far bricks).
 
     Returns (color (K,H,W,3) f32 premultiplied, transmittance (K,H,W) f32, expected depth
     (K,H,W) f32 = sum(z alpha T) / (1 - T) (0 where nothing was blended), stats dict with counts:
@@ -720,23 +832,12 @@ def rasterize(positions, quats, scales, opacities, sh, view_rot, view_t, intr, n
     guard = float(guard)
     tiles_x = (width + tile - 1) // tile
     tiles_y = (height + tile - 1) // tile
-    # guard band for the Jacobian: the image's x/z (y/z) extent [c - h, c + h] widened to c +- guard h
-    lo_x, hi_x = -intr[:, 2] / intr[:, 0], (width - intr[:, 2]) / intr[:, 0]
-    lo_y, hi_y = -intr[:, 3] / intr[:, 1], (height - intr[:, 3]) / intr[:, 1]
-    cx_, hx_ = 0.5 * (lo_x + hi_x), 0.5 * (hi_x - lo_x)
-    cy_, hy_ = 0.5 * (lo_y + hi_y), 0.5 * (hi_y - lo_y)
-    clamp = np.ascontiguousarray(np.stack([cx_ - guard * hx_, cx_ + guard * hx_, cy_ - guard * hy_,
-                                           cy_ + guard * hy_], axis=1))
-    # ||J||_F^2 = (fx/z)^2 (1 + tx^2) + (fy/z)^2 (1 + ty^2) with tx, ty within the clamp: A^2 / z^2 at most
-    tmax_x = np.maximum(np.abs(clamp[:, 0]), np.abs(clamp[:, 1]))
-    tmax_y = np.maximum(np.abs(clamp[:, 2]), np.abs(clamp[:, 3]))
-    jbound = np.sqrt(intr[:, 0] ** 2 * (1.0 + tmax_x**2) + intr[:, 1] ** 2 * (1.0 + tmax_y**2))
-    cams = np.ascontiguousarray(np.concatenate([view_rot.reshape(ncam, 9), view_t, intr, nearfar, clamp,
-                                                jbound[:, None]], axis=1))
+    cams, clamp = camera_rows(view_rot, view_t, intr, nearfar, width, height, guard)
     # large buffers are allocated by numpy (huge-page advice: far fewer page faults than numba's allocator)
+    bstart, bmask = _block_masks(blocks, order, n, cams, width, height, dilation)
     vis = np.empty(m_in, np.int64)
-    run_chunks(_cull, m_in, positions, scales, opacities, include, order, cams, width, height, dilation, vis,
-               min_chunk=4096)
+    run_chunks(_cull, m_in, positions, scales, opacities, include, order, cams, width, height, dilation, bstart,
+               bmask, vis, min_chunk=4096)
     off = np.empty((m_in + _CHUNK - 1) // _CHUNK + 1, np.int64)  # each chunk's first entry
     _visible_offsets(vis, off)
     m = int(off[-1])

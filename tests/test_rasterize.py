@@ -191,18 +191,11 @@ def test_cull_early_reject_keeps_every_pair_the_full_bound_keeps(dilation):
         intr = np.stack([c.intrinsics() for c in cams])
         nearfar = np.array([[c.near, c.far] for c in cams])
         w, h = size
-        lo_x, hi_x = -intr[:, 2] / intr[:, 0], (w - intr[:, 2]) / intr[:, 0]
-        lo_y, hi_y = -intr[:, 3] / intr[:, 1], (h - intr[:, 3]) / intr[:, 1]
-        cx_, hx_, cy_, hy_ = 0.5 * (lo_x + hi_x), 0.5 * (hi_x - lo_x), 0.5 * (lo_y + hi_y), 0.5 * (hi_y - lo_y)
-        clamp = np.stack([cx_ - 1.3 * hx_, cx_ + 1.3 * hx_, cy_ - 1.3 * hy_, cy_ + 1.3 * hy_], axis=1)
-        tmx = np.maximum(np.abs(clamp[:, 0]), np.abs(clamp[:, 1]))
-        tmy = np.maximum(np.abs(clamp[:, 2]), np.abs(clamp[:, 3]))
-        jb = np.sqrt(intr[:, 0] ** 2 * (1 + tmx**2) + intr[:, 1] ** 2 * (1 + tmy**2))
-        packed = np.ascontiguousarray(np.concatenate([vr.reshape(len(cams), 9), np.stack([v[1] for v in vm]), intr,
-                                                      nearfar, clamp, jb[:, None]], axis=1))
+        packed, _ = kr.camera_rows(vr, np.stack([v[1] for v in vm]), intr, nearfar, w, h, 1.3)
         vis = np.empty(n, np.int64)
         kr._cull(0, n, pos.astype(np.float32), scales.astype(np.float32), opac.astype(np.float32),
-                 np.zeros(0, np.bool_), np.zeros(0, np.int64), packed, w, h, dilation, vis)
+                 np.zeros(0, np.bool_), np.zeros(0, np.int64), packed, w, h, dilation, np.zeros(0, np.int64),
+                 np.zeros(0, np.int64), vis)
         want = _full_cull_bits(pos.astype(np.float32), scales.astype(np.float32), opac.astype(np.float32), cams, w,
                                h, dilation)
         assert np.array_equal(vis, want)

@@ -18,6 +18,7 @@ import numpy as np
 
 from numba_kernels.capsule import (
     block_reach,
+    block_scale_bound,
     block_spheres,
     within_ball_blocks,
     within_capsule,
@@ -66,6 +67,7 @@ class PointBlocks:
         self.starts = np.asarray(starts, np.int64)
         self._spheres = None
         self._reach: dict = {}  # factor -> block_reach of the scales the first call gave
+        self._scale_bound = None  # block_scale_bound of the scales the first cull_bounds call gave
         self._lock = threading.Lock()
 
     def _spheres_of(self, positions: np.ndarray):
@@ -105,3 +107,16 @@ class PointBlocks:
             with self._lock:
                 self._reach[float(factor)] = reach
         return within_capsule_scaled_blocks(positions, self.starts, spheres, reach, a, b, radius, scales, factor)
+
+    def cull_bounds(self, positions: np.ndarray, scales: np.ndarray) -> tuple | None:
+        """The blocks as the rasteriser's ``blocks`` argument (``numba_kernels.rasterize.rasterize``):
+        ``(starts, centres, radii, largest |scale|)``, computed once (the same positions and scales
+        every call); None when ``positions`` does not have ``starts[-1]`` rows."""
+        if len(positions) < self.starts[-1]:
+            return None
+        spheres = self._spheres_of(positions[:self.starts[-1]])
+        with self._lock:
+            if self._scale_bound is None:
+                self._scale_bound = block_scale_bound(scales[:self.starts[-1]], self.starts)
+            bound = self._scale_bound
+        return self.starts, spheres[0], spheres[1], bound

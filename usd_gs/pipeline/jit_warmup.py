@@ -206,11 +206,13 @@ def warm_up(groups=GROUPS) -> None:
         scale_sh(avatar.sh, opts.relight_gamma * scale)
         direct_irradiance(light, avatar.positions, normals)  # each light's direct term (a point light)
         probe.to_latlong(*opts.probe_texture)
-        render_probe_faces(everything, centre, 2, None, order=np.flatnonzero(mask))  # a render by indices
-        MergedPrim.of(avatar, opts.probe_merge_cell)  # a moving prim merged for the other prims' probes
         # the far field's ball tests over the static part (FarLayers.clear, block by block)
         layers = FarLayers(blocks=PointBlocks(block_starts([(0, scene.count)])))
         layers.clear(everything.positions[:scene.count], centre, 0.5, 1.0)
+        # a render by indices, its cull skipping cameras block by block (as FarField.render draws)
+        render_probe_faces(everything, centre, 2, None, order=np.flatnonzero(mask),
+                           blocks=layers.cull_bounds(everything))
+        MergedPrim.of(avatar, opts.probe_merge_cell)  # a moving prim merged for the other prims' probes
         flat = np.zeros((6, 2, 2), np.float32)  # and its layer moved to the probe's centre
         warp_layer(np.zeros((6, 2, 2, 3), np.float32), flat, flat, np.zeros(3), centre, 1.0)
         _mark("relight")

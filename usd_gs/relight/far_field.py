@@ -118,6 +118,11 @@ class FarLayers:
         if self.backing is not None and not keep_only and value[1] is not None:
             self.backing.put(("far layer", *key), (value[0], *value[1]))
 
+    def cull_bounds(self, everything) -> tuple | None:
+        """The static part's blocks as the rasteriser's cull bounds for renders of ``everything`` (the
+        shot buffer, the static part first: ``PointBlocks.cull_bounds``), or None without blocks."""
+        return None if self.blocks is None else self.blocks.cull_bounds(everything.positions, everything.scales)
+
     def within(self, static_positions: np.ndarray, centre, radius: float) -> np.ndarray:
         """(N,) bool: the static Gaussian centres ``static_positions`` (N, 3) (the static part, the
         same every call) within ``radius`` of ``centre``: ``within_capsule``'s values, block by block
@@ -177,6 +182,7 @@ class FarField:
         mask = np.asarray(mask, bool)
         s = self.static_count
         static = everything.positions[:s]
+        blocks = self._store.cull_bounds(everything)
         self.level, a = self.level_anchor(static, centre)
         # (a layer depends on its anchor, not on the level that chose it)
         key = (*(float(v) for v in a), int(size), float(dilation), int(supersample), int(everything.count),
@@ -187,14 +193,15 @@ class FarField:
             far = np.flatnonzero(beyond & mask[:s])
             faces = near = None
             if far.size:
-                faces = render_probe_faces(everything, a, size, None, dilation, supersample, order=far)
+                faces = render_probe_faces(everything, a, size, None, dilation, supersample, order=far, blocks=blocks)
                 near = np.flatnonzero(~beyond & mask[:s])  # the static Gaussians the near pass draws
                 self.renders += 1
             hit = (near, faces)
             self._store.put(key, hit)
         near, faces = hit
         if faces is None:  # nothing far: the plain render
-            return render_probe_faces(everything, centre, size, mask, dilation, supersample)
+            return render_probe_faces(everything, centre, size, mask, dilation, supersample, blocks=blocks)
         order = np.concatenate([near, s + np.flatnonzero(mask[s:])])  # (increasing: static first)
-        return composite_faces(render_probe_faces(everything, centre, size, None, dilation, supersample, order=order),
+        return composite_faces(render_probe_faces(everything, centre, size, None, dilation, supersample, order=order,
+                                                  blocks=blocks),
                                warp_layer(*faces, a, centre, self.radius * 2.0 ** self.level))

@@ -169,7 +169,8 @@ def fit_probe(faces: np.ndarray, degree: int = 3, lam: float = 1e-3, center=None
 
 
 def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | None = None,
-                       dilation: float = PROBE_DILATION, supersample: int = PROBE_SUPERSAMPLE, order=None):
+                       dilation: float = PROBE_DILATION, supersample: int = PROBE_SUPERSAMPLE, order=None,
+                       blocks=None):
     """The cube render of a probe (paper 3.4) at ``centre`` (3,) metres: six ``size``^2 faces of
     ``gaussians`` (world space; ``mask`` (N,) bool selects the Gaussians drawn, e.g. all but the
     avatar being relit), as ``(rgb, alpha, depth)`` of ``usd_gs.render.rasterize.render_cube_faces``; fit
@@ -182,14 +183,15 @@ def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | Non
     instead of sampling it at texel centres; it is off by default (its gain and cost on the
     known-light ground truth and the demo: docs/design.md, "Probe supersampling";
     ``benchmarks/bench_lighting_limits.py`` prints them). ``order``: instead of ``mask``, the
-    increasing indices of the Gaussians drawn (``usd_gs.render.rasterize.render_batch``)."""
+    increasing indices of the Gaussians drawn; ``blocks``: the cull's row blocks (both as for
+    ``usd_gs.render.rasterize.render_batch``: the same image)."""
     from usd_gs.render.rasterize import render_cube_faces
 
     k = int(supersample)
     if k < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
     rgb, alpha, depth = render_cube_faces(gaussians, centre, int(size) * k, mask=mask, antialiased=True,
-                                          dilation=float(dilation), order=order)
+                                          dilation=float(dilation), order=order, blocks=blocks)
     if k == 1:
         return rgb, alpha, depth
 

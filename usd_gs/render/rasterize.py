@@ -43,11 +43,13 @@ def _check_mask(gaussians: GaussianSet, mask) -> np.ndarray | None:
 
 
 def render_batch(gaussians: GaussianSet, cams: list[Camera], background=(0.0, 0.0, 0.0), mask=None,
-                 dilation: float = DEFAULT_DILATION, antialiased: bool = False, order=None):
+                 dilation: float = DEFAULT_DILATION, antialiased: bool = False, order=None, blocks=None):
     """Render up to 63 cameras of equal image size in one pass (one cull/projection sweep).
     ``antialiased``: opacity-compensated dilation (``numba_kernels.rasterize.rasterize``), for
     renders whose radiance is measured (probes). ``order``: instead of ``mask``, the increasing
-    indices of the Gaussians to draw (the same image; no pass over the others).
+    indices of the Gaussians to draw (the same image; no pass over the others). ``blocks``: None,
+    or bounds of row blocks that let the cull skip whole blocks per camera (the same image;
+    ``numba_kernels.rasterize.rasterize``, e.g. ``usd_gs.point_blocks.PointBlocks.cull_bounds``).
 
     Returns (rgb (K,H,W,3), alpha (K,H,W), depth (K,H,W)) float32, as :func:`render` per camera.
     """
@@ -63,7 +65,7 @@ def render_batch(gaussians: GaussianSet, cams: list[Camera], background=(0.0, 0.
         gaussians.positions, gaussians.orientations, gaussians.scales, gaussians.opacities, gaussians.sh,
         np.stack([v[0] for v in vm]), np.stack([v[1] for v in vm]), np.stack([c.intrinsics() for c in cams]),
         np.array([[c.near, c.far] for c in cams]), np.stack([c.position for c in cams]), w, h,
-        include=_check_mask(gaussians, mask), dilation=dilation, antialiased=antialiased, order=order)
+        include=_check_mask(gaussians, mask), dilation=dilation, antialiased=antialiased, order=order, blocks=blocks)
     bg = np.asarray(background, np.float32).reshape(3)
     rgb = color + trans[..., None] * bg
     alpha = (1.0 - trans).astype(np.float32)
@@ -83,16 +85,16 @@ def render(gaussians: GaussianSet, camera: Camera, background=(0.0, 0.0, 0.0), m
 
 def render_cube_faces(gaussians: GaussianSet, position, size: int, mask=None, background=(0.0, 0.0, 0.0),
                       near: float = 0.01, dilation: float = DEFAULT_DILATION, antialiased: bool = False,
-                      order=None):
+                      order=None, blocks=None):
     """Render the six OpenGL cube-map faces (+X, -X, +Y, -Y, +Z, -Z) seen from ``position``.
 
     Pixel (f, i, j) looks along ``numba_kernels.cubemap_dirs.cube_face_directions(size)[f, i, j]``.
     Returns (rgb (6,size,size,3), alpha (6,size,size), depth (6,size,size)) float32; depth is
-    the expected view depth along each face's axis (not the distance along the ray). ``order``:
-    as for :func:`render_batch`.
+    the expected view depth along each face's axis (not the distance along the ray). ``order``,
+    ``blocks``: as for :func:`render_batch`.
     """
     cams = cube_face_cameras(position, size, near=near)
-    return render_batch(gaussians, cams, background, mask, dilation, antialiased, order)
+    return render_batch(gaussians, cams, background, mask, dilation, antialiased, order, blocks)
 
 
 def to_srgb8(rgb: np.ndarray) -> np.ndarray:
