@@ -128,6 +128,8 @@ class BlockExtents:
         return np.stack([lo, hi]).astype(np.float32)
 
     def _named_error(self, keep: np.ndarray | None) -> np.ndarray:
+        """The kept rows' own ``GaussianSet.extent``, for a block whose box is not finite in float32:
+        it raises the ``GaussianDataError`` that names the first such element."""
         sub = self.g if keep is None else self.g.subset(keep)
         return sub.extent(self.n_sigma)
 
