@@ -63,6 +63,13 @@ def _within(i0, i1, p, extra, a, u, length, radius, out):
 
 
 @njit(cache=True, **threaded(), fastmath=False)
+def _within_plain(i0, i1, p, a, u, length, radius, out):
+    r2 = radius * radius  # (the value of _within's r * r with no extra: radius + 0.0 is radius)
+    for m in range(i0, i1):
+        out[m] = _distance2(p, m, a, u, length) <= r2
+
+
+@njit(cache=True, **threaded(), fastmath=False)
 def _within_scaled(i0, i1, p, scales, factor, a, u, length, radius, out):
     for m in range(i0, i1):
         r = radius + np.float64(factor * max(scales[m, 0], scales[m, 1], scales[m, 2]))
@@ -95,8 +102,11 @@ def within_capsule(positions, a, b, radius: float, extra=None) -> np.ndarray:
     0) of the segment ``a``-``b`` (3,) (module docstring)."""
     p, a64, u, length = _segment(positions, a, b)
     n = p.shape[0]
-    ex = np.zeros(n) if extra is None else np.ascontiguousarray(extra, np.float64).reshape(n)
     out = np.zeros(n, np.bool_)
+    if extra is None:  # (no (N,) array of zeros to make and read)
+        run_chunks(_within_plain, n, p, a64, u, length, float(radius), out, min_chunk=65536)
+        return out
+    ex = np.ascontiguousarray(extra, np.float64).reshape(n)
     run_chunks(_within, n, p, ex, a64, u, length, float(radius), out, min_chunk=65536)
     return out
 

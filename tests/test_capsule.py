@@ -22,6 +22,22 @@ def test_kernel_equals_the_reference_away_from_the_boundary():
     assert np.array_equal(got[clear], ref[clear]) and 0.02 < got.mean() < 0.5
 
 
+def test_no_extra_is_a_zero_extra_and_the_reference():
+    """``extra=None`` (its own kernel, no array of zeros): the values of an explicit zero reach, bit
+    for bit, for a segment and a ball, float32 and float64 points, points on the boundary included."""
+    rng = np.random.default_rng(5)
+    p32 = rng.uniform(-3, 3, (100_000, 3)).astype(np.float32)
+    p32[:4] = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, -2.0], [2.0, 0.0, 0.0]]  # at |p| = 1 or 2
+    for p in (p32, p32.astype(np.float64)):
+        for a, b, r in ((np.zeros(3), np.zeros(3), 2.0), (np.zeros(3), np.array([2.0, 1.0, -1.0]), 1.0)):
+            got = within_capsule(p, a, b, r)
+            assert np.array_equal(got, within_capsule(p, a, b, r, np.zeros(len(p))))
+            assert np.array_equal(got, reference(p, a, b, r, np.zeros(len(p))))
+            assert 0.05 < got.mean() < 0.8
+    assert within_capsule(p32[:4], np.zeros(3), np.zeros(3), 2.0).tolist() == [True, True, True, True]
+    assert within_capsule(p32[:4], np.zeros(3), np.zeros(3), 1.0).tolist() == [True, False, False, False]
+
+
 def test_hand_cases_segment_ends_and_a_ball():
     a, b = np.zeros(3), np.array([10.0, 0.0, 0.0])
     pts = np.array([[5.0, 0.99, 0.0],   # beside the middle, inside

@@ -260,7 +260,7 @@ def test_far_gaussians_change_nothing_and_are_not_scanned(scene_deg0, monkeypatc
     new = estimate_lights(both, c, k=3)
     new_rect = le.estimate_rect_lights(both, c)
     assert taken == [True, True]
-    monkeypatch.setattr(le, "_roi_scene", lambda s, centre, r: (s, None))
+    monkeypatch.setattr(le, "_roi_scene", lambda s, centre, r, *_: (s, None))
     old = estimate_lights(both, c, k=3)
     old_rect = le.estimate_rect_lights(both, c)
     assert len(new) == len(old) == 3 and len(new_rect) == len(old_rect) >= 1
@@ -269,6 +269,22 @@ def test_far_gaussians_change_nothing_and_are_not_scanned(scene_deg0, monkeypatc
         assert np.array_equal(a.position, b.position) and np.array_equal(a.color, b.color)
         assert (a.intensity, a.score) == (b.intensity, b.score)
     assert repr(new_rect) == repr(old_rect)
+    # values the caller checked (the pipeline's, read through usd_gs.usd): no pass over them, the same lights
+    import usd_gs.usd.gaussian_layer as gl
+
+    monkeypatch.setattr(le, "_roi_scene", spy)
+    scanned = []
+    all_finite = gl.all_finite
+    monkeypatch.setattr(gl, "all_finite", lambda a: scanned.append(a.size) or all_finite(a))
+    taken.clear()
+    checked = estimate_lights(both, c, k=3, values_checked=True)
+    checked_rect = le.estimate_rect_lights(both, c, values_checked=True)
+    assert taken == [True, True] and scanned == []
+    assert [(a.index, a.position.tolist(), a.color.tolist(), a.intensity, a.score) for a in checked] == \
+        [(a.index, a.position.tolist(), a.color.tolist(), a.intensity, a.score) for a in new]
+    assert repr(checked_rect) == repr(new_rect)
+    estimate_lights(both, c, k=3)
+    assert scanned == [both.positions.size, both.opacities.size, both.sh.size]  # (the spy sees the default's pass)
     # a non-finite value anywhere (here far outside the ROI) is still named
     bad = replace(both, sh=both.sh.copy(), label="big.ply")
     bad.sh[5, 0, 2] = np.inf

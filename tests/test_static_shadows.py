@@ -187,3 +187,43 @@ def test_occluder_subset_keeps_the_geometry_without_the_colours():
     for name in ("positions", "orientations", "scales", "opacities"):
         assert np.array_equal(getattr(sub, name), getattr(occ, name)) and getattr(occ, name).flags.c_contiguous
     assert occ.sh.shape == (idx.size, 1, 3) and not occ.sh.any() and occ.label == g.label and not occ.extras
+
+
+def test_receivers_near_the_light_get_bins_over_the_serve_radius_only():
+    """A scene with a far part (a second table 40 m away): the receivers within ``serve_radius``
+    of the light are looked up in bins spanning that far only (within the bounds of
+    ``test_lazy_atlas_matches_exact_and_reuses_columns`` of the exact transmittance; the bins over
+    the whole range are refined exactly more often), the receivers beyond it in the atlas of the whole range
+    (bit for bit), in one call or apart; a scene within the radius gets the single atlas's bits."""
+    from numba_kernels import dgsm_build
+
+    near = _scene(np.random.default_rng(11))
+    far = _scene(np.random.default_rng(12))
+    far.positions[:, 0] += 40.0
+    scene = GaussianSet.concatenate([near, far], label="two tables")
+    cfg = DGSMConfig(sampling="center")
+    whole = StaticSceneAtlas(scene, LIGHT, cfg)
+    served = StaticSceneAtlas(scene, LIGHT, cfg, serve_radius=15.0)
+    assert served.serve == 15.0 and whole.serve is None
+    assert served.t_max == dgsm_build.t_max_for(15.0, served.K) and whole.t_max > 40.0
+    walker = _walker(np.random.default_rng(13), 0.05)  # under the near table, 1-3 m from the light
+    # beyond the far table as seen from the light (its shadow) and beside it
+    rng = np.random.default_rng(14)
+    top = np.stack([rng.uniform(39.6, 40.4, 800), np.full(800, 0.8), rng.uniform(-0.3, 0.3, 800)], 1)
+    beyond = LIGHT + rng.uniform(1.02, 1.08, (800, 1)) * (top - LIGHT)
+    beyond[400:, 2] += 1.0
+    ref_near = exact_transmittance(scene, walker, LIGHT, cfg)
+    got_near = served.transmittance(walker)
+    err = np.abs(got_near - ref_near)
+    assert (ref_near < 0.5).mean() > 0.2 and err.max() < 0.05 and err.mean() < 2e-3
+    assert served._beyond is None  # nothing asked beyond the radius yet
+    got_beyond = served.transmittance(beyond)
+    want = whole.transmittance(beyond)
+    assert np.array_equal(got_beyond.view(np.uint64), want.view(np.uint64)) and 0.2 < (want < 0.5).mean() < 0.8
+    both = served.transmittance(np.concatenate([beyond[:300], walker, beyond[300:]]))
+    assert np.array_equal(both.view(np.uint64), np.concatenate([got_beyond[:300], got_near, got_beyond[300:]])
+                          .view(np.uint64))
+    # nothing beyond the radius: the single atlas
+    alone, plain = StaticSceneAtlas(near, LIGHT, cfg, serve_radius=15.0), StaticSceneAtlas(near, LIGHT, cfg)
+    assert alone.serve is None and alone.t_max == plain.t_max
+    assert np.array_equal(alone.transmittance(walker).view(np.uint64), plain.transmittance(walker).view(np.uint64))

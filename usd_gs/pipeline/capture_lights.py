@@ -103,7 +103,8 @@ def estimate_for_shot(proc, frames: list, k: int) -> CaptureLights:
         return CaptureLights([], lines=["capture: no static scene prim: no lights can be estimated"])
     up_axis = proc.dgsm.up_axis
     cfg = se.CaptureConfig()
-    cands = se.emitter_candidates(scene, centroid, max(k + 4, cfg.emitter_candidates), proc.mpu)
+    # (the static prims' values were checked finite when they were read)
+    cands = se.emitter_candidates(scene, centroid, max(k + 4, cfg.emitter_candidates), proc.mpu, values_checked=True)
     decision = None
     if mode in OPEN_MODES:
         decision = se.classify_capture(scene, centroid, up_axis, proc.mpu, cfg, cands)
@@ -160,7 +161,7 @@ def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis) -> 
         floor = se.ground_height(scene, up, centroid, cfg.receiver_radius / proc.mpu, hint,
                                  cfg.ground_search / proc.mpu, cfg.flat_cos, cfg.ground_band / 3 / proc.mpu)
         floor = hint if floor is None else floor
-    return closed_capture_lights(scene, centroid, cands, k, up_axis, proc.mpu, floor, decision)
+    return closed_capture_lights(scene, centroid, cands, k, up_axis, proc.mpu, floor, decision, values_checked=True)
 
 
 def rect_light(r: EstimatedRectLight, name: str) -> ShotLight:
@@ -178,7 +179,7 @@ def rect_light(r: EstimatedRectLight, name: str) -> ShotLight:
 
 def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_axis: str = "Y",
                           meters_per_unit: float = 1.0, floor: float | None = None, decision=None,
-                          rect_config: RectLightConfig | None = None) -> CaptureLights:
+                          rect_config: RectLightConfig | None = None, values_checked: bool = False) -> CaptureLights:
     """The lights of a closed capture: its plausible planar emitters as RectLights
     (``usd_gs.relight.light_estimation.estimate_rect_lights``, at most ``MAX_RECT_LIGHTS``,
     named ``Rect_<i>`` by decreasing score), plus the first ``k`` plausible point candidates
@@ -186,7 +187,8 @@ def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_
     paper 3.1) that do not lie on a kept planar emitter (those are reported as part of it),
     named ``Light_<i>`` by decreasing intensity. Plausibility as
     ``sun_estimation.plausible_emitters`` (visible from the avatars' region, not below
-    ``floor``); every rejected candidate is kept in ``rejected`` and in ``lines``."""
+    ``floor``); every rejected candidate is kept in ``rejected`` and in ``lines``.
+    ``values_checked``: as ``estimate_rect_lights``' (the caller checked ``scene``'s values finite)."""
     out = CaptureLights([], decision, lines=[decision.line()] if decision else [])
     cfg = se.CaptureConfig()
     mpu = float(meters_per_unit)
@@ -197,7 +199,7 @@ def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_
         se.plausible_emitters(scene, [cand], pts, up_axis, mpu, cfg, floor)
         (out.rejected if cand.rejected else kept).append(cand)
 
-    for r in estimate_rect_lights(scene, centroid, rect_config, meters_per_unit=mpu):
+    for r in estimate_rect_lights(scene, centroid, rect_config, meters_per_unit=mpu, values_checked=values_checked):
         if len(rects) >= MAX_RECT_LIGHTS:
             break
         sort_out(r, rects)

@@ -74,7 +74,13 @@ from usd_gs.shadows.sky_occlusion import (
     receiver_normals,
     sky_factors_from_shares,
 )
-from usd_gs.shadows.static_scene import SUN_ATLAS_PITCH, BlockExtents, StaticSceneAtlas, StaticSceneSunAtlas
+from usd_gs.shadows.static_scene import (
+    SERVE_RADIUS,
+    SUN_ATLAS_PITCH,
+    BlockExtents,
+    StaticSceneAtlas,
+    StaticSceneSunAtlas,
+)
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import (
     describe_gaussian_prim,
@@ -1461,7 +1467,8 @@ class ShotProcessor:
             self._scene_packs[key] = StaticSceneAtlas(self._scene_block, light.position, self._centre_cfg,
                                                       keep=self._emitter_keep(light),
                                                       extents=self._scene_packs["block extents"],
-                                                      blocks=self._point_blocks(self._scene_block_ranges))
+                                                      blocks=self._point_blocks(self._scene_block_ranges),
+                                                      serve_radius=SERVE_RADIUS / self.mpu)
         return self._scene_packs[key]
 
     def _static_sun_atlas(self, light):

@@ -148,17 +148,20 @@ def make_viewpoints(centroid, config: LightEstimationConfig, meters_per_unit: fl
     return out
 
 
-def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float) -> tuple[GaussianSet, np.ndarray | None]:
+def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float,
+               values_checked: bool = False) -> tuple[GaussianSet, np.ndarray | None]:
     """``(scene, None)``, or, where every value is finite and the ROI ball (``roi_radius`` scene
     units around ``centre``) holds at most half of the Gaussians, ``(its Gaussians, their indices
     in scene)``: the kernel's steps read only ROI Gaussians (the status, cues, tail and
     neighbourhoods of the others are zero or unused), so the sub-scene gives the same lights, bit
     for bit, with indices mapped back; a scene far larger than the ROI is not scanned again. A
-    non-finite value anywhere keeps the whole scene (the kernel names the element)."""
+    non-finite value anywhere keeps the whole scene (the kernel names the element);
+    ``values_checked``: the caller vouches that every value is finite (no scan for them)."""
     from numba_kernels.capsule import within_capsule
     from usd_gs.usd.gaussian_layer import all_finite
 
-    if scene.count < 2 or not all(all_finite(a) for a in (scene.positions, scene.opacities, scene.sh)):
+    if scene.count < 2 or not (values_checked or all(all_finite(a) for a in (scene.positions, scene.opacities,
+                                                                              scene.sh))):
         return scene, None
     # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
     near = np.flatnonzero(within_capsule(scene.positions, centre, centre, float(roi_radius)))
@@ -168,12 +171,16 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float) -> tup
 
 
 def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
-                    config: LightEstimationConfig | None = None, meters_per_unit: float = 1.0) -> list[EstimatedLight]:
+                    config: LightEstimationConfig | None = None, meters_per_unit: float = 1.0,
+                    values_checked: bool = False) -> list[EstimatedLight]:
     """The ``k`` dominant point lights of ``scene`` as seen from ``avatar_centroid`` (3,).
 
     Returns at most k lights (fewer if the ROI holds fewer separated candidates), sorted by
     decreasing intensity. Raises ``GaussianDataError`` naming the first Gaussian with a
     non-finite position, opacity or SH coefficient, ``UserError`` for a bad config or centroid.
+    ``values_checked``: the caller has checked every position, opacity and SH coefficient finite
+    (as ``usd_gs.usd``'s reads do); the pass over the whole scene that would name a bad one is
+    skipped (the same lights).
     """
     config = (config or LightEstimationConfig()).check()
     if int(k) < 0:
@@ -184,7 +191,7 @@ def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
     from numba_kernels.light_estimation import STATUS_NONFINITE, estimate_lights_arrays
 
     cfg = config.in_scene_units(meters_per_unit)
-    roi, rows = _roi_scene(scene, c, cfg.roi_radius)
+    roi, rows = _roi_scene(scene, c, cfg.roi_radius, values_checked)
     res = estimate_lights_arrays(roi.positions, roi.opacities, roi.sh, c,
                                  make_viewpoints(c, config, meters_per_unit), int(k), cfg)
     if rows is not None:
@@ -287,11 +294,12 @@ class EstimatedRectLight:
 
 def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightConfig | None = None,
                          light_config: LightEstimationConfig | None = None,
-                         meters_per_unit: float = 1.0) -> list[EstimatedRectLight]:
+                         meters_per_unit: float = 1.0, values_checked: bool = False) -> list[EstimatedRectLight]:
     """The planar emitters of ``scene`` (windows, panels) seen from ``avatar_centroid`` (3,):
     :class:`RectLightConfig`'s clusters of paper 3.1's bright Gaussians, sorted by decreasing
     score. Plausibility (visibility from the avatars, below the floor) is the caller's
-    (``usd_gs.relight.sun_estimation.plausible_emitters``). Raises like :func:`estimate_lights`."""
+    (``usd_gs.relight.sun_estimation.plausible_emitters``). Raises like :func:`estimate_lights`;
+    ``values_checked`` as there."""
     config = (config or RectLightConfig()).check()
     light_config = (light_config or LightEstimationConfig()).check()
     c = np.asarray(avatar_centroid, dtype=np.float64).reshape(-1)
@@ -307,7 +315,7 @@ def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightC
 
     mpu = float(meters_per_unit)
     cfg = light_config.in_scene_units(mpu)
-    scene, rows = _roi_scene(scene, c, cfg.roi_radius)  # (what follows reads ROI Gaussians only)
+    scene, rows = _roi_scene(scene, c, cfg.roi_radius, values_checked)  # (what follows reads ROI Gaussians only)
     res = estimate_lights_arrays(scene.positions, scene.opacities, scene.sh, c,
                                  make_viewpoints(c, light_config, mpu), 0, cfg)
     bad = np.flatnonzero(res["status"] == STATUS_NONFINITE)

@@ -251,11 +251,13 @@ def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 
     return float(np.sum(w[sel] * (alpha[sel] < 0.5)) / np.sum(w[sel]))
 
 
-def emitter_candidates(scene: GaussianSet, centre, k: int, meters_per_unit: float = 1.0) -> list[EmitterCandidate]:
-    """Paper 3.1's ``k`` best candidates (``usd_gs.relight.light_estimation``) with their cues."""
+def emitter_candidates(scene: GaussianSet, centre, k: int, meters_per_unit: float = 1.0,
+                       values_checked: bool = False) -> list[EmitterCandidate]:
+    """Paper 3.1's ``k`` best candidates (``usd_gs.relight.light_estimation``) with their cues;
+    ``values_checked`` as ``estimate_lights``'."""
 
     out = []
-    for e in estimate_lights(scene, centre, k=k, meters_per_unit=meters_per_unit):
+    for e in estimate_lights(scene, centre, k=k, meters_per_unit=meters_per_unit, values_checked=values_checked):
         lum = float(LUMA @ np.asarray(e.color))
         peak = float(e.score / e.intensity) if e.intensity > 0 else 0.0
         out.append(EmitterCandidate(np.asarray(e.position, np.float64), lum, peak, float(e.score),

@@ -15,6 +15,15 @@ refinement contrast (for example a foot just in front of the floor) the lookup i
 exactly on the point's own ray (``dgsm_sample.lookup_point_refined``), so the coarser radial
 spacing costs no accuracy at shadow edges.
 
+A point light's bins span the occluders' range, at most :data:`SERVE_RADIUS` from the light where
+they reach farther (a scene with a far part, such as a landscape beyond the room the avatars are
+in): the receivers within that distance are looked up in those bins (each bin holds the
+transmittance at its own depth on its ray, whatever the range; a served receiver lies before the
+last bin centre, so no lookup reads the last bin for a point beyond it), and the receivers beyond
+it in a second atlas whose bins span the whole range (the single atlas otherwise), built the
+first time one is asked about. Either way a receiver's value depends only on its position, the
+light and the scene, so a farm chunk gets the whole run's.
+
 The point-light atlas packs only the occluders that can reach a lookup: those near the capsule
 from the light to a ball holding every receiver asked about so far (a scene far from the avatars
 costs nothing per light), packing again with a grown ball when the receivers leave it; the
@@ -111,9 +120,9 @@ class BlockExtents:
         sizes = np.diff(starts)
         if keep is None:
             kept = sizes
-        else:
-            seen = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
-            kept = seen[starts[1:]] - seen[starts[:-1]]
+        else:  # each block's size less its dropped rows (few: no running count over every row)
+            dropped = np.flatnonzero(~np.asarray(keep, bool))
+            kept = sizes - np.diff(np.searchsorted(dropped, starts))
         whole = (kept == sizes) & (kept > 0)
         if not ok[whole].all():  # a box beyond float32: the subset's own extent names the element
             return self._named_error(keep)
@@ -134,16 +143,23 @@ class BlockExtents:
         return sub.extent(self.n_sigma)
 
 
+#: metres: a point light's atlas bins span at most this far for the receivers this close to it
+#: (module docstring); where the lights' own irradiance is at least 1/225 of what it is at 1 m
+SERVE_RADIUS = 15.0
+
+
 class StaticSceneAtlas:
     """Lazily filled DGSM of ``occluders`` (static, world space) for a point light at
     ``light_position`` (3,) metres; ``K`` radial bins (None: ``2 * cfg.K``); ``bounded``: pack
     only the occluders the receivers' reach needs (module docstring), else all of them; ``blocks``:
     None, or the occluders' rows as ``usd_gs.point_blocks.PointBlocks`` (a scene of many bricks),
-    whose capsule test then decides whole bricks at once (the same occluders)."""
+    whose capsule test then decides whole bricks at once (the same occluders); ``serve_radius``
+    (scene units; None: no limit): the bins span at most this far, for the receivers within it of
+    the light, and a second atlas over the whole range serves those beyond (module docstring)."""
 
     def __init__(self, occluders: GaussianSet, light_position, cfg: DGSMConfig, K: int | None = None,
                  bounded: bool = True, keep: np.ndarray | None = None, extents: BlockExtents | None = None,
-                 blocks: PointBlocks | None = None):
+                 blocks: PointBlocks | None = None, serve_radius: float | None = None):
         self.cfg = cfg
         self._blocks = blocks
         self.light = np.asarray(light_position, np.float64).reshape(3)
@@ -161,7 +177,13 @@ class StaticSceneAtlas:
             ext = (occluders if self._keep is None else occluders.subset(self._keep)).extent(cfg.k_sigma).astype(
                 np.float64)
         corners = np.array([[ext[i, 0], ext[j, 1], ext[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-        self.t_max = dgsm_build.t_max_for(dgsm_build.far_distance(self.light, corners), self.K)
+        t_far = dgsm_build.far_distance(self.light, corners)
+        self.serve = None  # (scene units) the receivers this atlas serves, None: all
+        self._beyond = None  # the atlas of the receivers beyond ``serve`` (built on first need)
+        if serve_radius is not None and t_far > float(serve_radius) > 0.0:
+            self.serve = t_far = float(serve_radius)
+            self._whole = (occluders, light_position, cfg, K, bounded, keep, extents, blocks)
+        self.t_max = dgsm_build.t_max_for(t_far, self.K)
         self.reach: tuple[np.ndarray, float] | None = None  # (centre, radius) of the receivers served
         self.kept = 0
         self.builds = 0  # packings of the occluders (a reach that grows packs again)
@@ -257,8 +279,24 @@ class StaticSceneAtlas:
 
     def transmittance(self, points) -> np.ndarray:
         """(M,) float64 transmittance at ``points`` (M, 3) metres: trilinear lookups, refined
-        exactly where the voxels blended differ by more than ``cfg.refine_contrast``."""
+        exactly where the voxels blended differ by more than ``cfg.refine_contrast``; the points
+        beyond ``serve`` from the light in the atlas of the whole range (class docstring)."""
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        if self.serve is None:
+            return self._served(pts)
+        d = pts - self.light
+        near = np.einsum("ij,ij->i", d, d) <= self.serve * self.serve
+        if near.all():
+            return self._served(pts)
+        if self._beyond is None:
+            self._beyond = StaticSceneAtlas(*self._whole)
+        out = np.empty(pts.shape[0])
+        out[near] = self._served(pts[near])
+        out[~near] = self._beyond.transmittance(pts[~near])
+        return out
+
+    def _served(self, pts: np.ndarray) -> np.ndarray:
+        """:meth:`transmittance` of points within ``serve`` (all of them where it is None)."""
         if self.count == 0 or pts.shape[0] == 0:
             return np.ones(pts.shape[0])
         if self._bounded:
