@@ -180,7 +180,7 @@ class StaticSceneAtlas:
         t_far = dgsm_build.far_distance(self.light, corners)
         self.serve = None  # (scene units) the receivers this atlas serves, None: all
         self._beyond = None  # the atlas of the receivers beyond ``serve`` (built on first need)
-        if serve_radius is not None and t_far > float(serve_radius) > 0.0:
+        if serve_radius is not None and self.count and t_far > float(serve_radius) > 0.0:
             self.serve = t_far = float(serve_radius)
             self._whole = (occluders, light_position, cfg, K, bounded, keep, extents, blocks)
         self.t_max = dgsm_build.t_max_for(t_far, self.K)
