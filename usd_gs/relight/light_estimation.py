@@ -160,8 +160,9 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float,
     from numba_kernels.capsule import within_capsule
     from usd_gs.usd.gaussian_layer import all_finite
 
-    if scene.count < 2 or not (values_checked or all(all_finite(a) for a in (scene.positions, scene.opacities,
-                                                                              scene.sh))):
+    if scene.count < 2:
+        return scene, None
+    if not (values_checked or all(all_finite(a) for a in (scene.positions, scene.opacities, scene.sh))):
         return scene, None
     # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
     near = np.flatnonzero(within_capsule(scene.positions, centre, centre, float(roi_radius)))
