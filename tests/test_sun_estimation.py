@@ -176,3 +176,57 @@ def test_lights_outdoor_on_a_closed_room_is_refused(room, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--lights outdoor" in err and "closed" in err and "sky above the horizon" in err
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["room.usdc"]
+
+
+def test_capture_lights_block_by_block_are_the_same(room, monkeypatch):
+    """The shot's light estimate with the scene's bricks as ``PointBlocks`` (the pipeline's path): a
+    closed room (its rows split into four prims) with two copies of it 40 m away (two more prims)
+    and a bright patch behind a wall; the candidates, the open/closed decision, the floor and the
+    closed capture's lights (with their rejections and visibilities) are those of the row-by-row
+    tests, bit for bit, and the blocks were used (their spheres computed, the far prims never
+    tested row by row)."""
+    from usd_gs.pipeline.capture_lights import closed_capture_lights
+    from usd_gs.point_blocks import PointBlocks, block_starts
+
+    g = room.gaussians
+    far = [GaussianSet.concatenate([g]) for _ in range(2)]
+    far[0].positions[:] += np.float32([40.0, 0.0, 0.0])
+    far[1].positions[:] += np.float32([0.0, 0.0, -40.0])
+    behind = _cluster(np.array([4.4, 1.5, 0.0]), seed=1)
+    cuts = np.linspace(0, g.count, 5).astype(int)
+    prims = [g.subset(slice(a, b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True)] + far + [behind]
+    scene = GaussianSet.concatenate(prims)
+    ends = np.cumsum([p.count for p in prims])
+    blocks = PointBlocks(block_starts(list(zip(np.r_[0, ends[:-1]], ends, strict=True))))
+    centre, up = np.array([-1.6, 0.9, -0.4]), se.up_vector("Y")
+    cfg = se.CaptureConfig()
+
+    plain_cands = se.emitter_candidates(scene, centre, 6, values_checked=True)
+    cands = se.emitter_candidates(scene, centre, 6, values_checked=True, blocks=blocks)
+    assert repr(cands) == repr(plain_cands) and len(cands) == 6
+    decision = se.classify_capture(scene, centre, "Y", config=cfg, candidates=cands, blocks=blocks)
+    plain_decision = se.classify_capture(scene, centre, "Y", config=cfg, candidates=plain_cands)
+    assert not decision.is_open and decision.empty_share == plain_decision.empty_share < 0.05
+    args = (scene, up, centre, cfg.receiver_radius, 0.0, cfg.ground_search, cfg.flat_cos, cfg.ground_band / 3)
+    floor = se.ground_height(*args, blocks=blocks)
+    assert floor == se.ground_height(*args) and abs(floor) < 0.05  # the room's floor is y = 0
+
+    tested = []  # rows tested one by one by the capsule kernels (where the estimate's modules call them)
+    import usd_gs.point_blocks as point_blocks
+
+    for module, name in ((se, "within_capsule"), (point_blocks, "within_capsule"),
+                         (point_blocks, "within_capsule_scaled")):
+        kernel = getattr(module, name)
+        monkeypatch.setattr(module, name, lambda p, *a, _k=kernel, **kw: tested.append(len(p)) or _k(p, *a, **kw))
+    lights = closed_capture_lights(scene, centre, cands, 2, "Y", floor=floor, decision=decision,
+                                   values_checked=True, blocks=blocks)
+    assert tested == [] and blocks._spheres is not None
+    plain = closed_capture_lights(scene, centre, plain_cands, 2, "Y", floor=floor, decision=plain_decision,
+                                  values_checked=True)
+    assert tested  # (the row-by-row path took the kernels the blocks avoid)
+    assert [(lt.name, lt.position.tolist(), lt.intensity) for lt in lights.lights] == \
+        [(lt.name, lt.position.tolist(), lt.intensity) for lt in plain.lights]
+    assert len(lights.lights) == 2 and lights.lines == plain.lines
+    assert [(c.position.tolist(), c.rejected, c.visibility) for c in lights.rejected] == \
+        [(c.position.tolist(), c.rejected, c.visibility) for c in plain.rejected]
+    assert any("hidden" in c.rejected for c in lights.rejected)  # the patch behind the wall

@@ -75,22 +75,26 @@ def sky_light(sky: se.SkyEstimate, up_axis: str, h: int = 32, w: int = 64) -> Sh
 
 
 def _region(proc, frames):
-    """(centroid (3,), ground hint or None, scene GaussianSet or None) of the shot's avatars."""
+    """(centroid (3,), ground hint or None, scene GaussianSet or None, its rows as ``PointBlocks``
+    or None) of the shot's avatars."""
     paths = [r.path for r in proc.roles if r.role == "scene" and not r.per_frame]
     scene = [proc.static[p] for p in paths]
     if not scene:
-        return None, None, None
+        return None, None, None, None
     movers = [r.path for r in proc.roles if r.role == "avatar"] or [r.path for r in proc.roles if r.per_frame]
     picks = sorted({frames[0], frames[len(frames) // 2], frames[-1]})
     sets = [proc._read(p, f) for p in movers for f in picks]
     sets = [g for g in sets if g.count]
-    whole = proc._static_receivers(paths).gaussians  # (shared with the shadows where the prims are the same)
+    recv = proc._static_receivers(paths)  # (shared with the shadows where the prims are the same)
+    whole = recv.gaussians
+    # its prims as blocks: the estimate's ball and capsule tests skip the bricks far from the avatars
+    blocks = proc._point_blocks(recv.ranges)
     if not sets:
-        return alpha_weighted_centroid(whole), None, whole
+        return alpha_weighted_centroid(whole), None, whole, blocks
     up = se.up_vector(proc.dgsm.up_axis)
     centroid = np.mean([alpha_weighted_centroid(g) for g in sets], axis=0)
     hint = float(np.min([np.percentile(g.positions.astype(np.float64) @ up, 1.0) for g in sets]))
-    return centroid, hint, whole
+    return centroid, hint, whole, blocks
 
 
 def estimate_for_shot(proc, frames: list, k: int) -> CaptureLights:
@@ -98,16 +102,17 @@ def estimate_for_shot(proc, frames: list, k: int) -> CaptureLights:
     ``_read_static``) for ``frames``, by ``proc.opts.lights`` (module docstring). ``UserError``
     for ``--lights outdoor`` on a capture whose sky is covered."""
     mode = proc.opts.lights
-    centroid, hint, scene = _region(proc, frames)
+    centroid, hint, scene, blocks = _region(proc, frames)
     if scene is None:
         return CaptureLights([], lines=["capture: no static scene prim: no lights can be estimated"])
     up_axis = proc.dgsm.up_axis
     cfg = se.CaptureConfig()
     # (the static prims' values were checked finite when they were read)
-    cands = se.emitter_candidates(scene, centroid, max(k + 4, cfg.emitter_candidates), proc.mpu, values_checked=True)
+    cands = se.emitter_candidates(scene, centroid, max(k + 4, cfg.emitter_candidates), proc.mpu, values_checked=True,
+                                  blocks=blocks)
     decision = None
     if mode in OPEN_MODES:
-        decision = se.classify_capture(scene, centroid, up_axis, proc.mpu, cfg, cands)
+        decision = se.classify_capture(scene, centroid, up_axis, proc.mpu, cfg, cands, blocks=blocks)
         if mode != "auto":
             want = mode == "outdoor"
             if want and decision.empty_share < cfg.open_share:
@@ -120,7 +125,7 @@ def estimate_for_shot(proc, frames: list, k: int) -> CaptureLights:
             decision.mode = mode
     if decision is not None and decision.is_open:
         return _open_lights(proc, scene, centroid, hint, decision, up_axis)
-    return _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis)
+    return _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis, blocks)
 
 
 def _open_lights(proc, scene, centroid, hint, decision, up_axis) -> CaptureLights:
@@ -153,15 +158,16 @@ def _open_lights(proc, scene, centroid, hint, decision, up_axis) -> CaptureLight
     return out
 
 
-def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis) -> CaptureLights:
+def _closed_lights(proc, scene, centroid, hint, cands, k, decision, up_axis, blocks=None) -> CaptureLights:
     cfg = se.CaptureConfig()
     up = se.up_vector(up_axis)
     floor = None
     if hint is not None:
         floor = se.ground_height(scene, up, centroid, cfg.receiver_radius / proc.mpu, hint,
-                                 cfg.ground_search / proc.mpu, cfg.flat_cos, cfg.ground_band / 3 / proc.mpu)
+                                 cfg.ground_search / proc.mpu, cfg.flat_cos, cfg.ground_band / 3 / proc.mpu, blocks)
         floor = hint if floor is None else floor
-    return closed_capture_lights(scene, centroid, cands, k, up_axis, proc.mpu, floor, decision, values_checked=True)
+    return closed_capture_lights(scene, centroid, cands, k, up_axis, proc.mpu, floor, decision, values_checked=True,
+                                 blocks=blocks)
 
 
 def rect_light(r: EstimatedRectLight, name: str) -> ShotLight:
@@ -179,7 +185,8 @@ def rect_light(r: EstimatedRectLight, name: str) -> ShotLight:
 
 def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_axis: str = "Y",
                           meters_per_unit: float = 1.0, floor: float | None = None, decision=None,
-                          rect_config: RectLightConfig | None = None, values_checked: bool = False) -> CaptureLights:
+                          rect_config: RectLightConfig | None = None, values_checked: bool = False,
+                          blocks=None) -> CaptureLights:
     """The lights of a closed capture: its plausible planar emitters as RectLights
     (``usd_gs.relight.light_estimation.estimate_rect_lights``, at most ``MAX_RECT_LIGHTS``,
     named ``Rect_<i>`` by decreasing score), plus the first ``k`` plausible point candidates
@@ -188,7 +195,9 @@ def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_
     named ``Light_<i>`` by decreasing intensity. Plausibility as
     ``sun_estimation.plausible_emitters`` (visible from the avatars' region, not below
     ``floor``); every rejected candidate is kept in ``rejected`` and in ``lines``.
-    ``values_checked``: as ``estimate_rect_lights``' (the caller checked ``scene``'s values finite)."""
+    ``values_checked``: as ``estimate_rect_lights``' (the caller checked ``scene``'s values finite);
+    ``blocks``: None, or ``scene``'s rows as ``usd_gs.point_blocks.PointBlocks`` where its values are
+    finite (the ball and capsule tests block by block: the same lights)."""
     out = CaptureLights([], decision, lines=[decision.line()] if decision else [])
     cfg = se.CaptureConfig()
     mpu = float(meters_per_unit)
@@ -196,10 +205,11 @@ def closed_capture_lights(scene: GaussianSet, centroid, cands: list, k: int, up_
     rect_config = rect_config or RectLightConfig()
     rects = []
     def sort_out(cand, kept: list) -> None:  # plausible: kept; else rejected with its reason
-        se.plausible_emitters(scene, [cand], pts, up_axis, mpu, cfg, floor)
+        se.plausible_emitters(scene, [cand], pts, up_axis, mpu, cfg, floor, blocks=blocks)
         (out.rejected if cand.rejected else kept).append(cand)
 
-    for r in estimate_rect_lights(scene, centroid, rect_config, meters_per_unit=mpu, values_checked=values_checked):
+    for r in estimate_rect_lights(scene, centroid, rect_config, meters_per_unit=mpu, values_checked=values_checked,
+                                  blocks=blocks):
         if len(rects) >= MAX_RECT_LIGHTS:
             break
         sort_out(r, rects)

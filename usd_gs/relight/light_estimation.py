@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from usd_gs.errors import GaussianDataError, UserError
 from usd_gs.gaussians import GaussianSet
+
+if TYPE_CHECKING:
+    from usd_gs.point_blocks import PointBlocks
 
 _DISTANCE_FIELDS = ("roi_radius", "view_radius", "peak_radius", "peak_inner_radius", "nms_distance", "refine_radius")
 _AXES = {"X": 0, "Y": 1, "Z": 2}
@@ -148,16 +152,18 @@ def make_viewpoints(centroid, config: LightEstimationConfig, meters_per_unit: fl
     return out
 
 
-def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float,
-               values_checked: bool = False) -> tuple[GaussianSet, np.ndarray | None]:
+def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float, values_checked: bool = False,
+               blocks: PointBlocks | None = None) -> tuple[GaussianSet, np.ndarray | None]:
     """``(scene, None)``, or, where every value is finite and the ROI ball (``roi_radius`` scene
     units around ``centre``) holds at most half of the Gaussians, ``(its Gaussians, their indices
     in scene)``: the kernel's steps read only ROI Gaussians (the status, cues, tail and
     neighbourhoods of the others are zero or unused), so the sub-scene gives the same lights, bit
     for bit, with indices mapped back; a scene far larger than the ROI is not scanned again. A
     non-finite value anywhere keeps the whole scene (the kernel names the element);
-    ``values_checked``: the caller vouches that every value is finite (no scan for them)."""
-    from numba_kernels.capsule import within_capsule
+    ``values_checked``: the caller vouches that every value is finite (no scan for them);
+    ``blocks``: None, or the scene's rows as ``usd_gs.point_blocks.PointBlocks`` (the ball test decided
+    block by block: the same rows)."""
+    from usd_gs.point_blocks import within_ball
     from usd_gs.usd.gaussian_layer import all_finite
 
     if scene.count < 2:
@@ -165,7 +171,7 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float,
     if not (values_checked or all(all_finite(a) for a in (scene.positions, scene.opacities, scene.sh))):
         return scene, None
     # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
-    near = np.flatnonzero(within_capsule(scene.positions, centre, centre, float(roi_radius)))
+    near = np.flatnonzero(within_ball(blocks, scene.positions, centre, float(roi_radius)))
     if near.size > scene.count // 2:
         return scene, None
     return scene.subset(near), near
@@ -173,7 +179,7 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float,
 
 def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
                     config: LightEstimationConfig | None = None, meters_per_unit: float = 1.0,
-                    values_checked: bool = False) -> list[EstimatedLight]:
+                    values_checked: bool = False, blocks: PointBlocks | None = None) -> list[EstimatedLight]:
     """The ``k`` dominant point lights of ``scene`` as seen from ``avatar_centroid`` (3,).
 
     Returns at most k lights (fewer if the ROI holds fewer separated candidates), sorted by
@@ -192,7 +198,7 @@ def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
     from numba_kernels.light_estimation import STATUS_NONFINITE, estimate_lights_arrays
 
     cfg = config.in_scene_units(meters_per_unit)
-    roi, rows = _roi_scene(scene, c, cfg.roi_radius, values_checked)
+    roi, rows = _roi_scene(scene, c, cfg.roi_radius, values_checked, blocks)
     res = estimate_lights_arrays(roi.positions, roi.opacities, roi.sh, c,
                                  make_viewpoints(c, config, meters_per_unit), int(k), cfg)
     if rows is not None:
@@ -295,12 +301,13 @@ class EstimatedRectLight:
 
 def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightConfig | None = None,
                          light_config: LightEstimationConfig | None = None,
-                         meters_per_unit: float = 1.0, values_checked: bool = False) -> list[EstimatedRectLight]:
+                         meters_per_unit: float = 1.0, values_checked: bool = False,
+                         blocks: PointBlocks | None = None) -> list[EstimatedRectLight]:
     """The planar emitters of ``scene`` (windows, panels) seen from ``avatar_centroid`` (3,):
     :class:`RectLightConfig`'s clusters of paper 3.1's bright Gaussians, sorted by decreasing
     score. Plausibility (visibility from the avatars, below the floor) is the caller's
     (``usd_gs.relight.sun_estimation.plausible_emitters``). Raises like :func:`estimate_lights`;
-    ``values_checked`` as there."""
+    ``values_checked`` and ``blocks`` as there."""
     config = (config or RectLightConfig()).check()
     light_config = (light_config or LightEstimationConfig()).check()
     c = np.asarray(avatar_centroid, dtype=np.float64).reshape(-1)
@@ -316,7 +323,8 @@ def estimate_rect_lights(scene: GaussianSet, avatar_centroid, config: RectLightC
 
     mpu = float(meters_per_unit)
     cfg = light_config.in_scene_units(mpu)
-    scene, rows = _roi_scene(scene, c, cfg.roi_radius, values_checked)  # (what follows reads ROI Gaussians only)
+    # (what follows reads ROI Gaussians only)
+    scene, rows = _roi_scene(scene, c, cfg.roi_radius, values_checked, blocks)
     res = estimate_lights_arrays(scene.positions, scene.opacities, scene.sh, c,
                                  make_viewpoints(c, light_config, mpu), 0, cfg)
     bad = np.flatnonzero(res["status"] == STATUS_NONFINITE)

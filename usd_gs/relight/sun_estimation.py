@@ -61,7 +61,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from numba_kernels.capsule import within_capsule, within_capsule_scaled
+from numba_kernels.capsule import within_capsule
 from numba_kernels.cubemap_dirs import cube_face_directions
 from numba_kernels.grid_neighbours import nearest
 from numba_kernels.sun_shadow import transmittance_directions
@@ -69,6 +69,7 @@ from usd_gs.colorspace import LUMA
 from usd_gs.errors import UserError
 from usd_gs.gaussians import GaussianSet, quaternion_to_matrix
 from usd_gs.io.envmap import latlong_directions, project_latlong_to_sh
+from usd_gs.point_blocks import PointBlocks, within_ball, within_reach
 from usd_gs.relight.light_estimation import estimate_lights
 from usd_gs.render.rasterize import render_cube_faces
 from usd_gs.shadows.dgsm import DGSMConfig, exact_transmittance, prepare_occluders
@@ -221,13 +222,14 @@ class CaptureDecision:
 
 
 def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 32, horizon_deg: float = 10.0,
-                    mask=None, near_radius: float | None = None) -> float:
+                    mask=None, near_radius: float | None = None, blocks: PointBlocks | None = None) -> float:
     """Solid-angle weighted share of the directions with elevation >= ``horizon_deg`` that a
     cube render of ``scene`` from ``centre`` leaves empty (alpha < 0.5). ``near_radius`` (scene
     units; None: off): where fewer than all Gaussians lie that close to ``centre``, those are
     drawn first, and when they alone cover every such direction (alpha >= 0.5 + 1e-4: drawing
     more Gaussians only lowers a texel's transmittance) the share is 0 without drawing the rest;
-    otherwise the whole scene is drawn as without it."""
+    otherwise the whole scene is drawn as without it. ``blocks``: None, or ``scene``'s rows as
+    ``usd_gs.point_blocks.PointBlocks`` (the near ball decided block by block: the same share)."""
 
     centre = np.asarray(centre, np.float64)
     size = int(size)
@@ -237,7 +239,7 @@ def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 
     if not sel.any():
         return 0.0
     if near_radius is not None and scene.count:
-        near = within_capsule(scene.positions, centre, centre, float(near_radius))
+        near = within_ball(blocks, scene.positions, centre, float(near_radius))
         if mask is not None:
             near &= np.asarray(mask, bool)
         if not near.all():
@@ -252,12 +254,13 @@ def empty_sky_share(scene: GaussianSet, centre, up_axis: str = "Y", size: int = 
 
 
 def emitter_candidates(scene: GaussianSet, centre, k: int, meters_per_unit: float = 1.0,
-                       values_checked: bool = False) -> list[EmitterCandidate]:
+                       values_checked: bool = False, blocks: PointBlocks | None = None) -> list[EmitterCandidate]:
     """Paper 3.1's ``k`` best candidates (``usd_gs.relight.light_estimation``) with their cues;
-    ``values_checked`` as ``estimate_lights``'."""
+    ``values_checked`` and ``blocks`` as ``estimate_lights``'."""
 
     out = []
-    for e in estimate_lights(scene, centre, k=k, meters_per_unit=meters_per_unit, values_checked=values_checked):
+    for e in estimate_lights(scene, centre, k=k, meters_per_unit=meters_per_unit, values_checked=values_checked,
+                             blocks=blocks):
         lum = float(LUMA @ np.asarray(e.color))
         peak = float(e.score / e.intensity) if e.intensity > 0 else 0.0
         out.append(EmitterCandidate(np.asarray(e.position, np.float64), lum, peak, float(e.score),
@@ -266,14 +269,16 @@ def emitter_candidates(scene: GaussianSet, centre, k: int, meters_per_unit: floa
 
 
 def classify_capture(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit: float = 1.0,
-                     config: CaptureConfig | None = None, candidates: list | None = None) -> CaptureDecision:
+                     config: CaptureConfig | None = None, candidates: list | None = None,
+                     blocks: PointBlocks | None = None) -> CaptureDecision:
     """Open or closed (module docstring, step 1); ``candidates``: precomputed
-    :func:`emitter_candidates` (computed here when None)."""
+    :func:`emitter_candidates` (computed here when None); ``blocks``: None, or ``scene``'s rows as
+    ``usd_gs.point_blocks.PointBlocks`` (ball tests block by block: the same decision)."""
     cfg = config or CaptureConfig()
     share = empty_sky_share(scene, centre, up_axis, cfg.probe_size, cfg.horizon_deg,
-                            near_radius=cfg.sky_near_radius / meters_per_unit)
+                            near_radius=cfg.sky_near_radius / meters_per_unit, blocks=blocks)
     if candidates is None:
-        candidates = emitter_candidates(scene, centre, cfg.emitter_candidates, meters_per_unit)
+        candidates = emitter_candidates(scene, centre, cfg.emitter_candidates, meters_per_unit, blocks=blocks)
     compact = [c for c in candidates if c.is_compact(cfg)]
     is_open = share >= cfg.open_share_alone or (share >= cfg.open_share and not compact)
     return CaptureDecision(bool(is_open), share, compact, candidates, "outdoor" if is_open else "indoor")
@@ -303,26 +308,33 @@ def _flat_among(g: GaussianSet, sel: np.ndarray, up: np.ndarray, flat_cos: float
     return out
 
 
-def _within_horizontal(positions: np.ndarray, up: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-    """Increasing indices of the ``positions`` (N, 3) within a little more than ``radius`` of the
+def _within_horizontal(g: GaussianSet, up: np.ndarray, centre: np.ndarray, radius: float,
+                       blocks: PointBlocks | None = None) -> np.ndarray:
+    """Increasing indices of the Gaussian centres of ``g`` within a little more than ``radius`` of the
     vertical line through ``centre``, a superset of those within ``radius``: one capsule pass along
     an axis-aligned ``up`` (its segment's ends 1e150 away, so the along-axis part cancels exactly
-    and the distance is the horizontal one); every index for another ``up``."""
+    and the distance is the horizontal one); every index for another ``up``. ``blocks``: None, or
+    ``g``'s rows as ``usd_gs.point_blocks.PointBlocks``, for ``g`` with finite scales: the capsule
+    test block by block (``within_reach`` with no reach of their own: the same rows)."""
     if np.count_nonzero(up) != 1:
-        return np.arange(len(positions))
+        return np.arange(g.count)
     half = 1e150 * np.asarray(up, np.float64)
-    return np.flatnonzero(within_capsule(positions, centre - half, centre + half, radius * (1.0 + 1e-6) + 1e-9))
+    a, b, r = centre - half, centre + half, radius * (1.0 + 1e-6) + 1e-9
+    if blocks is None:
+        return np.flatnonzero(within_capsule(g.positions, a, b, r))
+    return np.flatnonzero(within_reach(blocks, g.positions, a, b, r, g.scales, 0.0))
 
 
 def ground_height(g: GaussianSet, up: np.ndarray, centre, radius: float, hint: float | None, search: float,
-                  flat_cos: float, bin_size: float) -> float | None:
+                  flat_cos: float, bin_size: float, blocks: PointBlocks | None = None) -> float | None:
     """Height (along ``up``) of the densest flat horizontal layer of ``g`` within ``radius`` of
     ``centre`` (horizontal distance), searched within ``search`` of ``hint`` when given; None
-    when no flat Gaussian is there. Weighted by opacity x footprint area."""
+    when no flat Gaussian is there. Weighted by opacity x footprint area. ``blocks``: None, or
+    ``g``'s rows as ``usd_gs.point_blocks.PointBlocks`` where its values are finite (the same height)."""
     if not g.count:
         return None
     c = np.asarray(centre, np.float64)
-    cand = _within_horizontal(g.positions, up, c, radius)  # (a superset of the test below, in one pass)
+    cand = _within_horizontal(g, up, c, radius, blocks)  # (a superset of the test below, in one pass)
     p = g.positions[cand].astype(np.float64)
     h = p @ up
     horiz = (p - c) - np.outer(h - c @ up, up)
@@ -767,7 +779,7 @@ def overcast_sky(scene: GaussianSet, centre, up_axis: str = "Y", meters_per_unit
 # ----------------------------------------------------------------------------- closed captures
 def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.ndarray, up_axis: str = "Y",
                        meters_per_unit: float = 1.0, config: CaptureConfig | None = None,
-                       floor_height: float | None = None) -> list:
+                       floor_height: float | None = None, blocks: PointBlocks | None = None) -> list:
     """Mark each :class:`EmitterCandidate` ``rejected`` with a reason where it is not a
     plausible light for the shot: below the floor (``floor_height`` - margin, the avatars'
     ground) or hidden from every point of ``region_points`` (M, 3) by the scene's own Gaussians
@@ -775,7 +787,8 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
     to the points, ``usd_gs.shadows.dgsm.exact_transmittance``, over the Gaussians within
     :data:`_OFF_RAY_SIGMAS` sigmas of those rays; the candidate's own emitter Gaussians within
     ``emitter_radius`` left out): best transmittance < ``min_visibility``.
-    Sets ``visibility``; returns ``candidates``."""
+    Sets ``visibility``; returns ``candidates``. ``blocks``: None, or ``scene``'s rows as
+    ``usd_gs.point_blocks.PointBlocks`` (the ball and capsule tests block by block: the same values)."""
 
     cfg = (config or CaptureConfig()).in_scene_units(meters_per_unit)
     up = up_vector(up_axis)
@@ -785,8 +798,8 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
             c.rejected = (f"{floor_height - float(c.position @ up):.2f} below the floor the avatars stand on "
                           "(a reflection in the floor, not a light)")
             continue
-        keep = np.flatnonzero(~within_capsule(scene.positions, c.position, c.position, cfg.emitter_radius)
-                              & _near_rays(scene, c.position, pts))
+        keep = np.flatnonzero(~within_ball(blocks, scene.positions, c.position, cfg.emitter_radius)
+                              & _near_rays(scene, c.position, pts, blocks))
         vis = float(np.max(exact_transmittance(scene.subset(keep), pts, c.position))) if pts.size else 1.0
         c.visibility = vis
         if vis < cfg.min_visibility:
@@ -800,15 +813,17 @@ def plausible_emitters(scene: GaussianSet, candidates: list, region_points: np.n
 _OFF_RAY_SIGMAS = 8.0
 
 
-def _near_rays(scene: GaussianSet, origin: np.ndarray, targets: np.ndarray) -> np.ndarray:
+def _near_rays(scene: GaussianSet, origin: np.ndarray, targets: np.ndarray,
+               blocks: PointBlocks | None = None) -> np.ndarray:
     """(N,) bool: the Gaussians of ``scene`` within :data:`_OFF_RAY_SIGMAS` of their largest sigmas
     of the capsule that holds every segment from ``origin`` to a point of ``targets`` (M, 3):
-    around the segment to their centre, with their spread around it as its radius."""
+    around the segment to their centre, with their spread around it as its radius (``blocks``: as
+    :func:`plausible_emitters`')."""
     if targets.size == 0:
         return np.zeros(scene.count, bool)
     centre = targets.mean(axis=0)
     spread = float(np.sqrt(np.max(np.sum((targets - centre) ** 2, axis=1))))
-    return within_capsule_scaled(scene.positions, origin, centre, spread, scene.scales, _OFF_RAY_SIGMAS)
+    return within_reach(blocks, scene.positions, origin, centre, spread, scene.scales, _OFF_RAY_SIGMAS)
 
 
 def region_points(centre, up_axis: str, offset: float) -> np.ndarray:
