@@ -157,3 +157,104 @@ def test_far_layer_from_a_shot_cache_file_is_the_rendered_one(tmp_path):
 def test_bad_parameters(radius, tolerance):
     with pytest.raises(ValueError):
         FarField(radius, tolerance, 10)
+
+
+def _three_probes():
+    """The test scene, a mask without the moving cluster and three probe centres in three cells."""
+    everything, s = _scene()
+    mask = np.ones(everything.count, bool)
+    mask[s:] = False
+    centres = [np.array([0.1, 0.0, 0.0]), np.array([1.2, 0.3, 0.0]), np.array([-0.9, 0.0, 1.4])]
+    return everything, s, mask, centres
+
+
+def _spy_cubes(monkeypatch):
+    """Record the centres of each batched far-layer pass (``render_probe_cubes`` in far_field)."""
+    import usd_gs.relight.far_field as ff
+
+    calls = []
+    real = ff.render_probe_cubes
+
+    def spy(everything, centres, *args, **kwargs):
+        calls.append(len(centres))
+        return real(everything, centres, *args, **kwargs)
+
+    monkeypatch.setattr(ff, "render_probe_cubes", spy)
+    return calls
+
+
+def test_a_batch_renders_the_missing_far_layers_in_one_pass_bit_for_bit(monkeypatch):
+    """Three probes in three cells of one shared store: ``FarLayers.batch`` plans their three far
+    layers, one rasteriser pass draws them (from three anchors), and each probe render is bit for
+    bit the one of a store that renders its own layer; each prim counts its layer, and the next
+    renders find them kept (no batch)."""
+    everything, s, mask, centres = _three_probes()
+    refs = [FarField(10.0, 0.05, s).render(everything, c, SIZE, mask) for c in centres]
+    calls = _spy_cubes(monkeypatch)
+    shared = FarLayers(6)
+    fields = [FarField(10.0, 0.05, s, shared) for _ in centres]
+    batch = shared.batch([(f, everything, c, SIZE, mask, 0.0, 1) for f, c in zip(fields, centres, strict=True)])
+    assert batch is not None and len(batch.plans) == 3 and calls == []
+    batch.run()
+    assert calls == [3] and [f.renders for f in fields] == [1, 1, 1]
+    for f, c, ref in zip(fields, centres, refs, strict=True):
+        got = f.render(everything, c, SIZE, mask)
+        assert all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True))
+    assert calls == [3] and [f.renders for f in fields] == [1, 1, 1]
+    assert shared.batch([(f, everything, c, SIZE, mask, 0.0, 1) for f, c in zip(fields, centres, strict=True)]) \
+        is None  # (every layer kept)
+
+
+def test_a_probe_before_its_batch_runs_it_and_no_thread_waits_on_a_task_not_running(monkeypatch):
+    """The probe renders may start before the batch's task (one thread, or two threads busy with
+    them): the first that needs a layer runs the batch itself, the others wait for that thread or
+    find the layers done, the batch's task then does nothing; two threads that take the three
+    probes before the batch finish (no deadlock) with the same bits."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    everything, s, mask, centres = _three_probes()
+    refs = [FarField(10.0, 0.05, s).render(everything, c, SIZE, mask) for c in centres]
+    calls = _spy_cubes(monkeypatch)
+    for threads in (1, 2):
+        calls.clear()
+        shared = FarLayers(6)
+        fields = [FarField(10.0, 0.05, s, shared) for _ in centres]
+        batch = shared.batch([(f, everything, c, SIZE, mask, 0.0, 1) for f, c in zip(fields, centres, strict=True)])
+        with ThreadPoolExecutor(threads) as pool:
+            probes = [pool.submit(f.render, everything, c, SIZE, mask) for f, c in zip(fields, centres, strict=True)]
+            last = pool.submit(batch.run)
+            got = [p.result(timeout=120) for p in probes]
+            last.result(timeout=120)
+        assert calls == [3] and [f.renders for f in fields] == [1, 1, 1]
+        for g, ref in zip(got, refs, strict=True):
+            assert all(np.array_equal(a, b) for a, b in zip(g, ref, strict=True))
+
+
+def test_no_batch_for_one_missing_layer_and_a_failed_batch(monkeypatch):
+    """A store that keeps one of two probes' layers plans no batch (one render is no pass to share).
+    An error while a batch renders is raised to its task and to every later caller of its ``run``
+    (a probe render waiting on it); a probe render that asks after the failure renders its own
+    layer (the same bits as ever), the batch no longer pending."""
+    import usd_gs.relight.far_field as ff
+
+    everything, s, mask, centres = _three_probes()
+    ref = FarField(10.0, 0.05, s).render(everything, centres[1], SIZE, mask)
+    shared = FarLayers(6)
+    fields = [FarField(10.0, 0.05, s, shared) for _ in centres]
+    fields[0].render(everything, centres[0], SIZE, mask)
+    assert shared.batch([(f, everything, c, SIZE, mask, 0.0, 1) for f, c in zip(fields[:2], centres[:2],
+                                                                               strict=True)]) is None
+    batch = shared.batch([(f, everything, c, SIZE, mask, 0.0, 1) for f, c in zip(fields, centres, strict=True)])
+    assert batch is not None and len(batch.plans) == 2
+
+    def broken(*args, **kwargs):
+        raise MemoryError("far layers")
+
+    monkeypatch.setattr(ff, "render_probe_cubes", broken)
+    for _ in range(2):
+        with pytest.raises(MemoryError, match="far layers"):
+            batch.run()
+    key = fields[1].key(everything, centres[1], SIZE, mask)[2]
+    assert shared.due(key) is None
+    got = fields[1].render(everything, centres[1], SIZE, mask)
+    assert fields[1].renders == 1 and all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True))

@@ -312,3 +312,46 @@ def test_reading_the_next_frame_ahead_gives_the_plain_reads(tmp_path, monkeypatc
     assert "/World/Second (time 3)" in ahead_err
     assert ahead_err.replace("bad_ahead", "X") == plain_err.replace("bad_plain", "X")
     assert not (tmp_path / "bad_ahead.usdc").exists()
+
+
+def test_far_layers_of_two_probes_in_one_batch_give_the_same_output(tmp_path, monkeypatch):
+    """Two relit avatars in different far-field cells and a static block 40 m away: the first frame
+    renders both far layers in one batch task (``ShotProcessor._far_batches``), the later frames
+    keep them (no batch); the output, probes included, is that of each probe rendering its own."""
+    from dataclasses import replace
+
+    from pxr import Gf, Usd, UsdGeom
+
+    from usd_gs.pipeline import shot as shot_mod
+    from usd_gs.relight import far_field
+    from usd_gs.synthetic import random_gaussians
+    from usd_gs.usd.gaussian_prim import save_stage_atomic, write_gaussian_prim
+
+    shot = _shot(tmp_path / "shot.usda")
+    stage = Usd.Stage.Open(str(shot))
+    far = random_gaussians(2000, degree=1, seed=11)
+    far.positions[:, 0] += 40.0
+    far.scales[:] = 0.2
+    write_gaussian_prim(stage, "/World/FarBlock", replace(far, log_scales=None))
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World/Second")).GetOrderedXformOps()[0].Set(Gf.Vec3d(-2.5, 0, 0.0),
+                                                                                      Usd.TimeCode(1))
+    save_stage_atomic(stage, shot)
+    argv = ["process", str(shot), "--avatar", "/World/Avatar", "--avatar", "/World/Second", "--lights", "stage",
+            "--precision", "float", "--sh-tolerance", "0", "-q"]
+    planned = []
+    real = far_field.FarLayers.batch
+
+    def spy(self, requests):
+        got = real(self, requests)
+        planned.append(None if got is None else len(got.plans))
+        return got
+
+    monkeypatch.setattr(far_field.FarLayers, "batch", spy)
+    assert main([*argv, "-o", str(tmp_path / "batch.usdc")]) == 0
+    assert planned == [2, None, None]
+    monkeypatch.setattr(shot_mod.ShotProcessor, "_far_batches", lambda self, jobs: [])
+    assert main([*argv, "-o", str(tmp_path / "own.usdc")]) == 0
+    assert stage_differences(tmp_path / "batch.usdc", tmp_path / "own.usdc", [1, 2, 3]) == []
+    probes = sorted(p.name for p in (tmp_path / "batch_probes").iterdir())
+    assert probes and all((tmp_path / "batch_probes" / n).read_bytes() == (tmp_path / "own_probes" / n).read_bytes()
+                          for n in probes)

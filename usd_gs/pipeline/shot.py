@@ -52,7 +52,7 @@ from usd_gs.relight.avatar import linear_faces, probe_transfer, relight_factors
 from usd_gs.relight.direct import self_shadow_samples
 from usd_gs.relight.far_field import KEEP, FarField, FarLayers
 from usd_gs.relight.parallax import ProbeBlend
-from usd_gs.relight.probe import render_probe_faces
+from usd_gs.relight.probe import PROBE_DILATION, render_probe_faces
 from usd_gs.relight.probe_merge import MergedPrim, merge_capacity, merged_distance
 from usd_gs.relight.sun_estimation import up_vector
 from usd_gs.resources import check_memory
@@ -591,10 +591,14 @@ class ShotProcessor:
         # the probe renders and transfers need no shadow map: they run beside the shadow tasks
         # the previous frame's probe files and authoring run on this thread while this frame's shadow tasks run
         # and the next frame's moving prims are read ahead there too (a serial step less between frames)
+        # (the far layers that several probes miss, e.g. at the first frame: one task renders them together)
+        first = self._far_batches(jobs)
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
-                                               [partial(self._probe_task, path, job) for path, job in jobs],
+                                               first + [partial(self._probe_task, path, job) for path, job in jobs],
                                                meanwhile=partial(self._beside_tasks, frame),
-                                               extra_keys=[p for p, _ in jobs])
+                                               extra_keys=[("far layers", i) for i in range(len(first))]
+                                               + [p for p, _ in jobs])
+        transfers = transfers[len(first):]
         t = time.perf_counter()
         relit, probes = self._relight_pass(jobs, transfers, lights, shadows)
         self.clock.add("relight", t)
@@ -731,11 +735,20 @@ class ShotProcessor:
         """A proxy of each shadow-pass task's work, for the order of tasks that have not run yet (a
         shot's first frame, a new light): the Gaussians it draws or packs. A probe render (``extra``)
         draws the whole frame, the static scene's task builds its shot-long atlas over the static
-        casters, a caster's and a self-shadow's DGSM packs the prim, the sky task is small."""
+        casters, a caster's and a self-shadow's DGSM packs the prim, the sky task is small. Where a
+        batch of far layers runs (``extra`` keyed ``("far layers", i)``, :meth:`_far_batches`), it
+        starts first and the probe renders last: started early, they would wait for its layers."""
         total = sum(g.count for g in sets.values())
         scene = self._scene_block.count if self._scene_block is not None else 0
         sizes = {"extra": total, "sky": 0, "scene": scene}
-        return [sizes[key[0]] if key[0] in sizes else sets[key[1]].count for key in keys]
+        batch = any(key[0] == "extra" and isinstance(key[1], tuple) for key in keys)
+
+        def size(key):
+            if key[0] == "extra" and batch:  # far layers first, the probes that use them last
+                return 2 * total if isinstance(key[1], tuple) else 1
+            return sizes[key[0]] if key[0] in sizes else sets[key[1]].count
+
+        return [size(key) for key in keys]
 
     def _sky_task(self, sets: dict):
         """The frame's ``hidden_sky_shares`` as a task (``usd_gs.shadows.sky_occlusion``: the sky the
@@ -1575,6 +1588,20 @@ class ShotProcessor:
                    lights=lights, appearance=self._appearance(path, frame, g.count), far=self._far_field(path, spans))
         self.clock.add("transfer", t)
         return job
+
+    def _far_batches(self, jobs: list) -> list:
+        """The far layers (``usd_gs.relight.far_field.FarLayers.batch``) that two or more of this frame's
+        probe renders (``jobs``, :meth:`_relight_jobs`) would each render, as tasks of the shadow pass
+        (started before the probes: a ``FarBatch``'s ``run`` each, one per static part; [] for none)."""
+        stores: dict = {}
+        for _, job in jobs:
+            far = job.get("far")
+            if far is not None:
+                stores.setdefault(id(far._store), (far._store, []))[1].append(
+                    (far, job["everything"], job["centre"], self.opts.probe_size, job["mask"], PROBE_DILATION,
+                     self.opts.probe_supersample))
+        batches = [store.batch(requests) for store, requests in stores.values() if len(requests) > 1]
+        return [b.run for b in batches if b is not None]
 
     def _far_field(self, path: str, spans) -> FarField | None:
         """Prim ``path``'s far-layer cache for its probe renders (``usd_gs.relight.far_field``), or

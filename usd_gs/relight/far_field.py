@@ -48,7 +48,7 @@ import numpy as np
 
 from numba_kernels.cube_warp import warp_layer
 from usd_gs.point_blocks import PointBlocks, within_ball
-from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_faces
+from usd_gs.relight.probe import PROBE_DILATION, PROBE_SUPERSAMPLE, render_probe_cubes, render_probe_faces
 
 #: far layers kept per relit prim (a prim that moves back and forth between two cells reuses both)
 KEEP = 2
@@ -96,6 +96,7 @@ class FarLayers:
         self._lock = threading.Lock()
         self._layers: list = []  # [(key, (near indices or None, faces or None))], most recent first
         self._clear: dict = {}
+        self._batches: dict = {}  # key -> the FarBatch that renders it (until it has run)
 
     def get(self, key):
         with self._lock:
@@ -117,6 +118,79 @@ class FarLayers:
             self._layers = [(key, value), *[kv for kv in self._layers if kv[0] != key]][:self.keep]
         if self.backing is not None and not keep_only and value[1] is not None:
             self.backing.put(("far layer", *key), (value[0], *value[1]))
+
+    def has_anchor(self, anchor) -> bool:
+        """True when a layer kept here was rendered from ``anchor`` (3,) (a hint: its key may still
+        differ in the mask or the render's size)."""
+        a = tuple(float(v) for v in anchor)
+        with self._lock:
+            return any(k[:3] == a for k, _ in self._layers)
+
+    def batch(self, requests) -> FarBatch | None:
+        """The far layers that two or more probe renders about to run will miss, as one
+        :class:`FarBatch` (its :meth:`FarBatch.run` is the task that renders them; until it has run,
+        :meth:`FarField.render` of those probes draws its near part, then runs or waits for it), or
+        None where fewer than two would be rendered. ``requests``: ``[(far field, everything,
+        centre, size, mask, dilation, supersample)]``, the arguments of the coming
+        :meth:`FarField.render` calls (whose far fields share this store)."""
+        due = []
+        for req in requests:
+            far, everything, centre = req[:3]
+            _, a = far.level_anchor(everything.positions[:far.static_count], centre)
+            if not self.has_anchor(a):
+                due.append(req)
+        if len(due) < 2:
+            return None
+        plans = {}
+        for far, everything, centre, size, mask, dilation, supersample in due:
+            _, a, key = far.key(everything, centre, size, mask, dilation, supersample)
+            if key not in plans and self.get(key) is None and self.due(key) is None:
+                plans[key] = (far, everything, a, int(size), float(dilation), int(supersample), np.asarray(mask, bool))
+        if len(plans) < 2:
+            return None
+        batch = FarBatch(self, plans)
+        with self._lock:
+            for key in plans:
+                self._batches[key] = batch
+        return batch
+
+    def due(self, key) -> FarBatch | None:
+        """The :class:`FarBatch` that renders layer ``key`` and has not run yet, or None."""
+        with self._lock:
+            return self._batches.get(key)
+
+    def _render_plans(self, batch: FarBatch) -> dict:
+        """``{key: (near indices or None, faces or None)}`` of every layer ``batch`` plans (kept here
+        too): layers with the same far Gaussians and render settings drawn in one pass
+        (``render_probe_cubes``: each bit for bit its own render)."""
+        groups: list = []  # [far indices, everything, settings, [(key, far field, anchor, near indices)]]
+        for key, (far, everything, a, size, dilation, supersample, mask) in batch.plans.items():
+            near, beyond = far.split(everything, a, mask)
+            for g in groups:
+                if g[1] is everything and g[2] == (size, dilation, supersample) and np.array_equal(g[0], beyond):
+                    g[3].append((key, far, a, near))
+                    break
+            else:
+                groups.append([beyond, everything, (size, dilation, supersample), [(key, far, a, near)]])
+        out = {}
+        for beyond, everything, (size, dilation, supersample), members in groups:
+            if not beyond.size:
+                out.update((key, (None, None)) for key, _, _, _ in members)
+                continue
+            cubes = render_probe_cubes(everything, [a for _, _, a, _ in members], size, None, dilation, supersample,
+                                       order=beyond, blocks=self.cull_bounds(everything))
+            for (key, far, _, near), faces in zip(members, cubes, strict=True):
+                out[key] = (near, faces)
+                far.renders += 1
+        for key, value in out.items():
+            self.put(key, value)
+        return out
+
+    def _ran(self, batch: FarBatch) -> None:
+        with self._lock:
+            for key in batch.plans:
+                if self._batches.get(key) is batch:
+                    del self._batches[key]
 
     def cull_bounds(self, everything) -> tuple | None:
         """The static part's blocks as the rasteriser's cull bounds for renders of ``everything`` (the
@@ -141,6 +215,36 @@ class FarLayers:
             with self._lock:
                 self._clear[key] = hit
         return hit
+
+
+class FarBatch:
+    """Far layers that several probes need at one frame (:meth:`FarLayers.batch`), rendered in one
+    rasteriser pass by the first thread that calls :meth:`run` - the batch's own task, or a probe
+    render that needs one of its layers first; a later caller waits until it is done (so a wait is
+    only ever on a thread that is rendering). ``layers``: key -> ``(near indices, faces)`` once run;
+    an error while rendering is raised to every caller."""
+
+    def __init__(self, store: FarLayers, plans: dict):
+        self.store = store
+        self.plans = plans  # key -> (far field, everything, anchor, size, dilation, supersample, mask)
+        self.layers: dict = {}
+        self._lock = threading.Lock()
+        self._ran = False
+        self._error: BaseException | None = None
+
+    def run(self) -> None:
+        with self._lock:
+            if not self._ran:
+                self._ran = True
+                try:
+                    self.layers = self.store._render_plans(self)
+                except BaseException as exc:
+                    self._error = exc
+                    raise
+                finally:
+                    self.store._ran(self)
+            elif self._error is not None:
+                raise self._error
 
 
 class FarField:
@@ -175,33 +279,64 @@ class FarField:
                 return level, a
         return 0, self.anchor(centre, 0)
 
+    def key(self, everything, centre, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
+            supersample: int = PROBE_SUPERSAMPLE) -> tuple:
+        """``(level, anchor, key)`` of the far layer that :meth:`render` of these arguments draws."""
+        s = self.static_count
+        level, a = self.level_anchor(everything.positions[:s], centre)
+        # (a layer depends on its anchor, not on the level that chose it)
+        key = (*(float(v) for v in a), int(size), float(dilation), int(supersample), int(everything.count),
+               _digest(np.asarray(mask, bool)[:s]))
+        return level, a, key
+
+    def split(self, everything, anchor, mask: np.ndarray) -> tuple:
+        """``(near, far)``: the increasing indices of the static Gaussians drawn (``mask``) within
+        ``radius`` of ``anchor`` (None where none lies beyond) and beyond it."""
+        s = self.static_count
+        inside = self._store.within(everything.positions[:s], anchor, self.radius)
+        drawn = np.asarray(mask, bool)[:s]
+        beyond = np.flatnonzero(drawn & ~inside)
+        return (np.flatnonzero(drawn & inside) if beyond.size else None), beyond
+
     def render(self, everything, centre, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
                supersample: int = PROBE_SUPERSAMPLE) -> tuple:
         """``render_probe_faces(everything, centre, size, mask, dilation, supersample)``, with the
-        static Gaussians far from the anchor taken from the cached far layer, moved to ``centre``."""
+        static Gaussians far from the anchor taken from the cached far layer, moved to ``centre``
+        (a layer a :class:`FarBatch` renders: the near part drawn first, then the batch run or
+        waited for)."""
         mask = np.asarray(mask, bool)
-        s = self.static_count
-        static = everything.positions[:s]
         blocks = self._store.cull_bounds(everything)
-        self.level, a = self.level_anchor(static, centre)
-        # (a layer depends on its anchor, not on the level that chose it)
-        key = (*(float(v) for v in a), int(size), float(dilation), int(supersample), int(everything.count),
-               _digest(mask[:s]))
+        self.level, a, key = self.key(everything, centre, size, mask, dilation, supersample)
         hit = self._store.get(key)
         if hit is None:
-            beyond = ~self._store.within(static, a, self.radius)
-            far = np.flatnonzero(beyond & mask[:s])
-            faces = near = None
-            if far.size:
-                faces = render_probe_faces(everything, a, size, None, dilation, supersample, order=far, blocks=blocks)
-                near = np.flatnonzero(~beyond & mask[:s])  # the static Gaussians the near pass draws
+            batch = self._store.due(key)
+            if batch is not None:
+                near, _ = self.split(everything, a, mask)
+                drawn = self._near_render(everything, centre, size, mask, near, dilation, supersample, blocks)
+                batch.run()
+                return self._composite(drawn, batch.layers[key][1], a, centre)
+            near, beyond = self.split(everything, a, mask)
+            faces = None
+            if beyond.size:
+                faces = render_probe_faces(everything, a, size, None, dilation, supersample, order=beyond,
+                                           blocks=blocks)
                 self.renders += 1
             hit = (near, faces)
             self._store.put(key, hit)
         near, faces = hit
-        if faces is None:  # nothing far: the plain render
+        return self._composite(self._near_render(everything, centre, size, mask, near, dilation, supersample, blocks),
+                               faces, a, centre)
+
+    def _near_render(self, everything, centre, size, mask, near, dilation, supersample, blocks) -> tuple:
+        """The probe's render of the static Gaussians ``near`` (None: every static one drawn) and the
+        moving ones ``mask`` draws."""
+        if near is None:  # nothing far: the plain render
             return render_probe_faces(everything, centre, size, mask, dilation, supersample, blocks=blocks)
-        order = np.concatenate([near, s + np.flatnonzero(mask[s:])])  # (increasing: static first)
-        return composite_faces(render_probe_faces(everything, centre, size, None, dilation, supersample, order=order,
-                                                  blocks=blocks),
-                               warp_layer(*faces, a, centre, self.radius * 2.0 ** self.level))
+        order = np.concatenate([near, self.static_count + np.flatnonzero(mask[self.static_count:])])
+        return render_probe_faces(everything, centre, size, None, dilation, supersample, order=order, blocks=blocks)
+
+    def _composite(self, near_faces: tuple, far_faces, anchor, centre) -> tuple:
+        """``near_faces`` over the far layer ``far_faces`` rendered from ``anchor`` (None: nothing far)."""
+        if far_faces is None:
+            return near_faces
+        return composite_faces(near_faces, warp_layer(*far_faces, anchor, centre, self.radius * 2.0 ** self.level))

@@ -185,23 +185,35 @@ def render_probe_faces(gaussians, centre, size: int = 32, mask: np.ndarray | Non
     ``benchmarks/bench_lighting_limits.py`` prints them). ``order``: instead of ``mask``, the
     increasing indices of the Gaussians drawn; ``blocks``: the cull's row blocks (both as for
     ``usd_gs.render.rasterize.render_batch``: the same image)."""
-    from usd_gs.render.rasterize import render_cube_faces
+    return render_probe_cubes(gaussians, [centre], size, mask, dilation, supersample, order, blocks)[0]
+
+
+def render_probe_cubes(gaussians, centres, size: int = 32, mask: np.ndarray | None = None,
+                       dilation: float = PROBE_DILATION, supersample: int = PROBE_SUPERSAMPLE, order=None,
+                       blocks=None) -> list:
+    """:func:`render_probe_faces` of the same Gaussians at each of ``centres`` (P, 3), the cubes drawn
+    together (``usd_gs.render.rasterize.render_cubes``: one cull sweep for several cubes); each
+    cube's ``(rgb, alpha, depth)`` bit for bit as :func:`render_probe_faces` gives it alone."""
+    from usd_gs.render.rasterize import render_cubes
 
     k = int(supersample)
     if k < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
-    rgb, alpha, depth = render_cube_faces(gaussians, centre, int(size) * k, mask=mask, antialiased=True,
-                                          dilation=float(dilation), order=order, blocks=blocks)
+    cubes = render_cubes(gaussians, centres, int(size) * k, mask=mask, antialiased=True, dilation=float(dilation),
+                         order=order, blocks=blocks)
     if k == 1:
-        return rgb, alpha, depth
+        return cubes
 
     def down(x):
         return x.reshape((6, int(size), k, int(size), k) + x.shape[3:]).mean(axis=(2, 4), dtype=np.float64)
 
-    a = down(alpha)
-    ad = down(alpha * depth)
-    d = np.where(a > 0.0, ad / np.where(a > 0.0, a, 1.0), 0.0)
-    return down(rgb).astype(np.float32), a.astype(np.float32), d.astype(np.float32)
+    out = []
+    for rgb, alpha, depth in cubes:
+        a = down(alpha)
+        ad = down(alpha * depth)
+        d = np.where(a > 0.0, ad / np.where(a > 0.0, a, 1.0), 0.0)
+        out.append((down(rgb).astype(np.float32), a.astype(np.float32), d.astype(np.float32)))
+    return out
 
 def probe_from_latlong(img: np.ndarray, degree: int = 3, center=None) -> SHProbe:
     """Probe by direct SH projection of a lat-long radiance image (exact pixel solid angles)."""
