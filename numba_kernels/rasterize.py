@@ -73,8 +73,9 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 SUPPORT_Q = 9.0  # 3 sigma
-#: the square root of the largest support cut ``_support_q`` returns
-SQRT_Q_MAX = math.sqrt(SUPPORT_Q * (1.0 + 1e-5))
+#: the largest support cut ``_support_q`` returns, and its square root
+SUPPORT_Q_MAX = SUPPORT_Q * (1.0 + 1e-5)
+SQRT_Q_MAX = math.sqrt(SUPPORT_Q_MAX)
 DEFAULT_DILATION = 0.3
 DEFAULT_GUARD = 1.3
 TILE = 16
@@ -111,6 +112,19 @@ def _pixel_range(m, e, n):
     if hi > n - 1:
         hi = n - 1
     return int(lo), int(hi)
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _misses_centres(m, a):
+    """True when no pixel centre ``k + 0.5`` lies within ``sqrt(SUPPORT_Q_MAX a) (1 + 1e-6) + 1e-6`` of
+    ``m``: the largest half-extent the cull's ``sqrt(q a) (1 + 1e-6) + 1e-6`` can take (``q`` <=
+    ``_support_q``'s cap), so :func:`_pixel_range` of any such extent is empty - decided without the
+    support's log and the square root (most sub-pixel splats of a far scene end here). The nearest
+    centre is taken without the image's bounds (which only shrink the range), with a margin far
+    above the rounding of ``_pixel_range``'s own sums. False where anything is not finite."""
+    t = m - 0.5
+    d = abs(t - math.floor(t + 0.5)) - (1e-6 + 1e-9)
+    return d > 0.0 and d * d > SUPPORT_Q_MAX * a * ((1.0 + 1e-6) ** 2 * (1.0 + 1e-12))
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -234,7 +248,9 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     half-extent bound below, ``sqrt(a + b) <= sqrt(a) + sqrt(b)``), the centre's pixel ``u = fx x
     / z + cx`` lies left of the image by more than ``e`` when ``fx x + (cx - 0.5) z + SQRT_Q_MAX (smax
     A + sqrt(dilation) z) < 0`` (likewise right, above, below); the test keeps a relative margin
-    of 1e-3 and 1e-3 px, so it rejects only what the full test rejects.
+    of 1e-3 and 1e-3 px, so it rejects only what the full test rejects. A splat on the image whose
+    largest possible half-extents (``_misses_centres``) hold no pixel centre along u or v is
+    rejected next, still without the log and the square roots (a far scene's sub-pixel splats).
     """
     n = positions.shape[0]
     ncam = cams.shape[0]
@@ -278,8 +294,6 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
             if (ux + ez < 0.5 * z or ux - ez > (width - 0.5) * z or vy + ez < 0.5 * z
                     or vy - ez > (height - 0.5) * z):
                 continue
-            if qcut < 0.0:
-                qcut = _support_q(op)
             iz = 1.0 / z
             u = cams[k, 12] * x * iz + cams[k, 14]
             v = cams[k, 13] * y * iz + cams[k, 15]
@@ -289,8 +303,14 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
             tx = min(cams[k, 19], max(cams[k, 18], x * iz))
             ty = min(cams[k, 21], max(cams[k, 20], y * iz))
             s2 = smax * smax
-            ebx = math.sqrt(qcut * (s2 * (cams[k, 12] * iz) ** 2 * (1.0 + tx * tx) + dilation)) * (1.0 + 1e-6) + 1e-6
-            eby = math.sqrt(qcut * (s2 * (cams[k, 13] * iz) ** 2 * (1.0 + ty * ty) + dilation)) * (1.0 + 1e-6) + 1e-6
+            ax = s2 * (cams[k, 12] * iz) ** 2 * (1.0 + tx * tx) + dilation
+            ay = s2 * (cams[k, 13] * iz) ** 2 * (1.0 + ty * ty) + dilation
+            if _misses_centres(u, ax) or _misses_centres(v, ay):
+                continue
+            if qcut < 0.0:
+                qcut = _support_q(op)
+            ebx = math.sqrt(qcut * ax) * (1.0 + 1e-6) + 1e-6
+            eby = math.sqrt(qcut * ay) * (1.0 + 1e-6) + 1e-6
             j0, j1 = _pixel_range(u, ebx, width)
             i0, i1 = _pixel_range(v, eby, height)
             if j1 >= j0 and i1 >= i0:

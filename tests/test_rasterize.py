@@ -205,6 +205,34 @@ def test_cull_early_reject_keeps_every_pair_the_full_bound_keeps(dilation):
         assert np.mean(vis != 0) > 0.05 and kept < 0.8 * front
 
 
+def test_a_splat_missing_every_pixel_centre_is_rejected_before_its_support_is_sized():
+    """``_misses_centres`` (the cull's test before the support's log and square root) says "no centre"
+    only where :func:`_pixel_range` of the largest half-extent the cull can compute from that
+    ``a`` is empty: on centres spread over the image, halfway between pixel centres, and at
+    distances from the nearest centre one part in 1e9 either side of that extent (where it must
+    say "maybe"); for sub-pixel splats it decides most of them."""
+    from numba_kernels.rasterize import SUPPORT_Q_MAX, _misses_centres, _pixel_range
+
+    rng = np.random.default_rng(8)
+    a = np.exp(rng.uniform(np.log(1e-8), np.log(2.0), 20000))
+    e = np.sqrt(SUPPORT_Q_MAX * a) * (1 + 1e-6) + 1e-6  # the largest half-extent for a
+    k = rng.integers(-2, 66, a.size) + 0.5  # a pixel centre (some outside a 64-pixel image)
+    side = rng.choice([-1.0, 1.0], a.size)
+    cases = {"spread": rng.uniform(-2.0, 66.0, a.size), "halfway": k + 0.5,
+             "just beyond": k + side * np.minimum(e * (1 + 1e-9) + 1e-12, 0.5),
+             "just within": k + side * e * (1 - 1e-9)}
+    for name, m in cases.items():
+        missed = np.array([_misses_centres(float(mm), float(aa)) for mm, aa in zip(m, a, strict=True)])
+        for mm, ee in zip(m[missed], e[missed], strict=True):
+            lo, hi = _pixel_range(float(mm), float(ee), 64)
+            assert hi < lo, (name, mm, ee)
+        if name == "just within":
+            assert not missed.any()  # a centre within the extent: never rejected
+        if name == "spread":
+            assert missed[e < 0.05].mean() > 0.8  # sub-pixel: most decided without the log
+    assert not _misses_centres(np.nan, 1e-4) and not _misses_centres(3.7, np.nan)
+
+
 def test_reference_with_mask_and_background():
     g = _scene_random(seed=3)
     mask = np.random.default_rng(0).uniform(size=g.count) < 0.5
