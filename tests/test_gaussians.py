@@ -258,3 +258,31 @@ def test_pure_translation_keeps_everything_but_positions_bit_exact():
     same = g.transformed(np.eye(4))
     np.testing.assert_array_equal(same.positions, g.positions)
     assert same.positions is not g.positions
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_concatenate_reports_whether_every_value_is_finite(monkeypatch, threaded):
+    """``GaussianSet.concatenate(finite=[])`` appends True for finite inputs and False for an input
+    with one NaN or infinity in any attribute (SH of a lower degree padded with zeros), in the
+    serial and the threaded fill; the result is the same set either way."""
+    from dataclasses import replace
+
+    import usd_gs.gaussians as gaussians_module
+    from usd_gs.synthetic import random_gaussians
+
+    if threaded:
+        monkeypatch.setattr(gaussians_module, "PARALLEL_COPY_BYTES", 1)
+    a, b = random_gaussians(700, 1, seed=1), random_gaussians(900, 3, seed=2)
+    flags = []
+    whole = GaussianSet.concatenate([a, b], finite=flags)
+    plain = GaussianSet.concatenate([a, b])
+    assert flags == [True]
+    assert all(np.array_equal(getattr(whole, f), getattr(plain, f))
+               for f in ("positions", "orientations", "scales", "opacities", "sh"))
+    for field, index, value in (("positions", (5, 1), np.nan), ("orientations", (650, 0), np.inf),
+                                ("scales", (3, 2), -np.inf), ("opacities", 699, np.nan), ("sh", (2, 3, 0), np.nan)):
+        bad = replace(a, **{field: getattr(a, field).copy()})
+        getattr(bad, field)[index] = value
+        flags.clear()
+        GaussianSet.concatenate([b, bad], finite=flags)
+        assert flags == [False], field

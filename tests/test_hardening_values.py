@@ -147,3 +147,55 @@ def test_spz_fractional_bits_beyond_the_format(tmp_path, capsys):
     assert main(["import", str(p), "-o", str(tmp_path / "bad.usdc")]) == 2
     e = _err(capsys)
     assert "fractionalBits" in e and "255" in e, e
+
+
+@pytest.mark.parametrize("raw", [False, True])
+@pytest.mark.parametrize("name, index", [("positions", 13), ("scales", 4),
+                                         ("radiance:sphericalHarmonicsCoefficients", 22)])
+def test_a_static_value_that_is_not_finite_is_named_as_when_read(tmp_path, capsys, name, index, raw):
+    """The static prims' finite checks are made while the static scene is concatenated (one pass
+    less over a large scene), or before any other use where it is not (``raw``: raw log-scales
+    keep each prim's own copy): a NaN in the second of two static prims stops the run with exit 2
+    and the message the plain read of that prim gives (prim, attribute, element); nothing written."""
+    from dataclasses import replace
+
+    from usd_gs.errors import GaussianDataError
+    from usd_gs.usd.gaussian_prim import read_gaussian_prim
+
+    shot = tiny_shot(tmp_path / "shot.usda", frames=1)
+    stage = Usd.Stage.Open(str(shot))
+    g = random_gaussians(40, degree=1, seed=6)
+    write_gaussian_prim(stage, "/World/Props", g if raw else replace(g, log_scales=None, logit_opacities=None))
+    if not raw:
+        room = stage.GetPrimAtPath("/World/Room")
+        for attr in room.GetAttributes():
+            if attr.GetName().startswith("usdgs:raw"):
+                room.RemoveProperty(attr.GetName())
+    save_stage_atomic(stage, shot)
+    stage = Usd.Stage.Open(str(shot))
+    values = np.array(stage.GetPrimAtPath("/World/Props").GetAttribute(name).Get())
+    values[index] = np.nan
+    _set_attr(shot, "/World/Props", name, type(stage.GetPrimAtPath("/World/Props").GetAttribute(name).Get())
+              .FromNumpy(values))
+    stage = Usd.Stage.Open(str(shot))
+    with pytest.raises(GaussianDataError) as plain:
+        read_gaussian_prim(stage.GetPrimAtPath("/World/Props"), Usd.TimeCode.EarliestTime())
+    assert f"element {index} is not finite" in str(plain.value)
+    out = tmp_path / "o.usdc"
+    from usd_gs.gaussians import GaussianSet
+
+    fused = []
+    concatenate = GaussianSet.concatenate
+
+    def spy(sets, label="<gaussians>", finite=None):
+        got = concatenate(sets, label, finite)
+        if finite is not None:
+            fused.append(finite[0])
+        return got
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(GaussianSet, "concatenate", staticmethod(spy))
+        assert main(["process", str(shot), "-o", str(out), "--avatar", "/World/Avatar", "-q"]) == 2
+    assert _err(capsys).endswith(str(plain.value))
+    assert fused == ([] if raw else [False])  # (the copy found it; with raw data the plain checks did)
+    assert not out.exists()

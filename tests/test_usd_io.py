@@ -329,6 +329,35 @@ def test_error_non_finite_names_first_bad_element(name, index, value):
         read_gaussian_prim(prim)
 
 
+def test_deferred_finite_checks_are_made_by_check_deferred_and_not_for_a_transformed_prim():
+    """``read_gaussian_prim(defer_finite=[...])`` leaves a prim's finite checks to the caller where its
+    values are used as authored: no error at the read, ``check_deferred`` raises the read's own
+    named error; a prim with a transform checks them at the read as before (its world values are
+    computed from them)."""
+    from pxr import Gf, UsdGeom
+
+    from usd_gs.usd.gaussian_prim import check_deferred
+
+    prim = _prim()
+    arr = np.array(np.asarray(prim.GetAttribute("scales").Get()))
+    arr[4] = np.nan
+    prim.GetAttribute("scales").Set(Vt.Vec3fArray.FromNumpy(arr))
+    with pytest.raises(GaussianDataError) as plain:
+        read_gaussian_prim(prim)
+    deferred = []
+    g = read_gaussian_prim(prim, defer_finite=deferred)
+    assert np.isnan(g.scales[4]).all() and len(deferred) == 1
+    with pytest.raises(GaussianDataError) as later:
+        check_deferred(deferred)
+    assert str(later.value) == str(plain.value) and "'scales' element 4 is not finite" in str(plain.value)
+    check_deferred([])  # (nothing left: no error)
+    UsdGeom.Xformable(prim).AddTranslateOp().Set(Gf.Vec3d(1.0, 0.0, 0.0))
+    deferred.clear()
+    with pytest.raises(GaussianDataError, match="'scales' element 4 is not finite"):
+        read_gaussian_prim(prim, defer_finite=deferred)
+    assert deferred == []
+
+
 def test_error_sh_nan_reports_flat_element():
     prim = _prim(degree=1)
     arr = np.array(np.asarray(prim.GetAttribute(SH_COEFFS).Get()))

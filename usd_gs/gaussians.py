@@ -363,12 +363,15 @@ class GaussianSet:
                            dict(self.extras), label=label)
 
     @staticmethod
-    def concatenate(sets: list[GaussianSet], label: str = "<gaussians>") -> GaussianSet:
+    def concatenate(sets: list[GaussianSet], label: str = "<gaussians>", finite: list | None = None) -> GaussianSet:
         """One set holding all Gaussians of ``sets`` in order.
 
         SH is zero-padded to the highest degree among the inputs. Raw ``log_scales`` /
         ``logit_opacities`` are kept only if every input has them; ``extras`` only for
-        keys (with equal trailing shape) present in every input.
+        keys (with equal trailing shape) present in every input. ``finite``: None, or a list to
+        which one bool is appended: whether every position, orientation, scale, opacity and SH
+        coefficient of the result is finite (:func:`all_finite` of each input's rows as they are
+        copied, while they are in cache: no second pass over the inputs).
         """
         if not sets:
             return GaussianSet.empty(label=label)
@@ -387,7 +390,14 @@ class GaussianSet:
                "scales": np.empty((n, 3), np.float32), "opacities": np.empty(n, np.float32),
                "sh": np.empty((n, sh3dgs.num_coeffs(degree), 3), np.float32)}
 
+        bad: list = []  # row ranges with a value that is not finite (where ``finite`` is asked for)
+
+        def check(a: int, b: int) -> None:
+            if b > a and not all(all_finite(arr[a:b]) for arr in out.values()):
+                bad.append((a, b))
+
         def fill(lo: int, hi: int) -> None:
+            unchecked = lo  # (rows copied since the last check: checked some 8k rows at a time, in cache)
             for i in range(int(np.searchsorted(starts, lo, "right")) - 1, len(sets)):
                 a, b = max(lo, int(starts[i])), min(hi, int(starts[i + 1]))
                 if a >= hi:
@@ -399,6 +409,11 @@ class GaussianSet:
                     k = g.sh.shape[1]
                     out["sh"][a:b, :k] = g.sh[r0:r1]
                     out["sh"][a:b, k:] = 0.0
+                    if finite is not None and b - unchecked >= FINITE_ROWS:
+                        check(unchecked, b)
+                        unchecked = b
+            if finite is not None:
+                check(unchecked, hi)
 
         if sum(a.nbytes for a in out.values()) >= PARALLEL_COPY_BYTES:
             from numba_kernels.thread_chunks import run_chunks
@@ -406,6 +421,8 @@ class GaussianSet:
             run_chunks(fill, n, chunks_per_thread=1, min_chunk=1 << 16)
         else:
             fill(0, n)
+        if finite is not None:
+            finite.append(not bad)
         keys = set(sets[0].extras)
         for g in sets[1:]:
             keys &= {k for k in g.extras if g.extras[k].shape[1:] == sets[0].extras.get(k, np.zeros(0)).shape[1:]}
@@ -414,8 +431,23 @@ class GaussianSet:
                            cat("log_scales"), cat("logit_opacities"), extras, label=label)
 
 
+def all_finite(arr: np.ndarray) -> bool:
+    """True when every element of the float array is finite. One pass without an array-sized
+    temporary: a NaN or an infinity makes the sum NaN or infinite, so a finite sum proves every
+    element finite; a sum that overflows (or a non-finite element) is decided element by element."""
+    if arr.size == 0:
+        return True
+    flat = arr.reshape(-1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.add.reduce(flat, dtype=flat.dtype)):
+            return True
+    return bool(np.isfinite(flat).all())
+
+
 #: bytes from which :meth:`GaussianSet.concatenate` fills its result in threads
 PARALLEL_COPY_BYTES = 64 << 20
+#: rows :meth:`GaussianSet.concatenate` copies between two finite checks (``finite``): about 1 MB
+FINITE_ROWS = 8192
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -83,6 +83,7 @@ from usd_gs.shadows.static_scene import (
 )
 from usd_gs.usd.frames import outside_warning, parse_frames
 from usd_gs.usd.gaussian_prim import (
+    check_deferred,
     describe_gaussian_prim,
     find_gaussian_prims,
     read_gaussian_prim,
@@ -434,10 +435,21 @@ class ShotProcessor:
         return read_gaussian_prim(self.prims[path], Usd.TimeCode(frame), check_types=False)
 
     def _read_static(self):
+        """The static prims' sets; that their values are finite is checked where they are first
+        concatenated (:meth:`_static_part`: while copied, one pass less over a large scene) or
+        by :meth:`_check_static` before any other use (the same named errors)."""
         t0 = time.perf_counter()
-        self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime(), check_types=False)
+        self._unchecked: list = []
+        self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime(), check_types=False,
+                                                  defer_finite=self._unchecked)
                        for r in self.roles if not r.per_frame}
         self.clock.add("read", t0)
+
+    def _check_static(self) -> None:
+        """The finite checks that :meth:`_read_static` left (``check_deferred``: ``GaussianDataError``
+        naming the first static prim, attribute and element that is not finite)."""
+        unchecked, self._unchecked = getattr(self, "_unchecked", []), []
+        check_deferred(unchecked)
 
     # ------------------------------------------------------------------ lights
     def _estimate(self, frames: list[float], k: int) -> list[ShotLight]:
@@ -512,6 +524,7 @@ class ShotProcessor:
         self._scene_block = casters.gaussians if static_casters else None
         self._scene_block_ranges = casters.ranges
         self._casters_dyn = [r.path for r in self.roles if r.per_frame and r.casts_shadows and r.role != "scene"]
+        self._check_static()  # (a static prim in neither set)
 
     def _static_receivers(self, paths: list) -> Receivers:
         """The static prims ``paths`` concatenated (``Receivers``), once per shot and list of paths:
@@ -522,6 +535,8 @@ class ShotProcessor:
         if key not in self._scene_packs:
             parts = [(p, self.static[p]) for p in paths]
             shared = self._static_part() if tuple(paths) == tuple(self.static) else None
+            if shared is None:
+                self._check_static()
             self._scene_packs[key] = (Receivers.build(parts) if shared is None
                                       else Receivers(shared[0], Receivers.row_ranges(parts)))
         return self._scene_packs[key]
@@ -551,7 +566,11 @@ class ShotProcessor:
         if any(self.degrees.get(p, degree + 1) > degree for p in moving):
             return None
         rows = sum(self.counts[p] for p in moving) + self._merge_rows([self.counts[p] for p in moving])
-        whole = GaussianSet.concatenate(static + [_empty_rows(rows)], label="shot")
+        finite: list | None = [] if getattr(self, "_unchecked", None) else None
+        whole = GaussianSet.concatenate(static + [_empty_rows(rows)], label="shot", finite=finite)
+        if finite is not None and finite[0]:  # every static value is finite: their checks are made
+            self._unchecked = []
+        self._check_static()  # (what is left: raises, naming the first value that is not finite)
         n = whole.count - rows
         part = GaussianSet(whole.positions[:n], whole.orientations[:n], whole.scales[:n], whole.opacities[:n],
                            whole.sh[:n], label="receivers")

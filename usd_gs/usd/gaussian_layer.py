@@ -18,7 +18,7 @@ from pxr import Sdf, Vt
 from usd_gs import sh3dgs
 from usd_gs.errors import GaussianDataError, UserError, first_bad_index
 from usd_gs.extent import gaussian_extent
-from usd_gs.gaussians import GaussianSet
+from usd_gs.gaussians import GaussianSet, all_finite
 from usd_gs.io.atomic import atomic_output
 from usd_gs.usd.bulk import vt_from_numpy, vt_writable
 
@@ -62,19 +62,6 @@ _EXTRA_TYPES = {
 
 
 # --------------------------------------------------------------------------- checks
-def all_finite(arr: np.ndarray) -> bool:
-    """True when every element of the float array is finite. One pass without an array-sized
-    temporary: a NaN or an infinity makes the sum NaN or infinite, so a finite sum proves every
-    element finite; a sum that overflows (or a non-finite element) is decided element by element."""
-    if arr.size == 0:
-        return True
-    flat = arr.reshape(-1)
-    with np.errstate(over="ignore", invalid="ignore"):
-        if np.isfinite(np.add.reduce(flat, dtype=flat.dtype)):
-            return True
-    return bool(np.isfinite(flat).all())
-
-
 def _check_finite(arr: np.ndarray, where: str, name: str) -> None:
     if all_finite(arr):  # fast path
         return

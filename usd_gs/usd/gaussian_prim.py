@@ -193,7 +193,7 @@ def _degree(prim: Usd.Prim) -> tuple[int, bool]:
 
 # --------------------------------------------------------------------------- reading
 def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool = True, *,
-                       check_types: bool = True) -> GaussianSet:
+                       check_types: bool = True, defer_finite: list | None = None) -> GaussianSet:
     """Read one Gaussian splat prim as a :class:`GaussianSet` labelled with the prim path.
 
     ``time``: ``Usd.TimeCode``/number/None (``Default``); time-sampled attributes are read
@@ -208,7 +208,11 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
     prim-local with ``world=False``) unless ``skin=False`` (the authored bind pose, read as if
     unbound). Raw log-scales are dropped from skinned sets. ``check_types=False`` skips the check of
     the authored value types (``usd_gs.usd.attr_types.require_types``), for a caller that made it on
-    this prim of this stage already (:func:`describe_gaussian_prim` makes it).
+    this prim of this stage already (:func:`describe_gaussian_prim` makes it). ``defer_finite``: None,
+    or a list: where the values are returned as authored (no transform, no skinning), the check
+    that they are finite is not made here but appended to it, for :func:`check_deferred` (or a
+    pass that proves every value finite, e.g. ``GaussianSet.concatenate(finite=...)``) to make
+    before they are used.
 
     Unauthored ``opacities`` read as 1 (the schema rule); the arrays of a prim without a
     transform are read-only zero-copy views of USD memory (copy before editing in place).
@@ -268,8 +272,13 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
         raise GaussianDataError(f"{where}: attribute '{names[SH_COEFFS]}' has {len(sh_flat)} elements but "
                                 f"{n} particles with '{SH_DEGREE}' {degree} need {n} * {k} = {n * k}")
 
-    for name in DATA_ATTRS:
-        _check_finite(arrays[name], where, names[name])
+    skinned = bool(skin and n and _skel.has_skel_binding(prim))
+    m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc)) if world and not skinned else None
+    checks = [(arrays[name], where, names[name]) for name in DATA_ATTRS]
+    if defer_finite is not None and not skinned and (m is None or np.array_equal(m, np.eye(4))):
+        defer_finite.append(checks)  # (values used as authored: the caller checks them)
+    else:
+        check_deferred([checks])
 
     quat_xyzw = arrays[ORIENTATIONS]
     # a row of four False bytes is a zero uint32: a zero-length quaternion
@@ -288,12 +297,11 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
 
     gs = GaussianSet(pos, orientations, scales, opac, sh_flat.reshape(n, k, 3), log_scales, logit_opacities,
                      extras, label=path)
-    if skin and n and _skel.has_skel_binding(prim):
+    if skinned:
         # UsdSkel binding: the authored values are the bind pose; skin them (the prim's own transform
         # is ignored, the skeleton's applies: usd_gs.usd.skel).
         return _check_transformed(_skel.read_skinned(prim, gs, tc, world=world), path, tc)
-    if world:
-        m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc))
+    if m is not None:
         if not np.array_equal(m, np.eye(4)):
             why = similarity_error(m)
             if why is not None:
@@ -303,6 +311,15 @@ def read_gaussian_prim(prim: Usd.Prim, time=None, world: bool = True, skin: bool
                 gs = gs.transformed(m, label=path)
             _check_transformed(gs, path, tc)
     return gs
+
+
+def check_deferred(deferred: list) -> None:
+    """The finite checks :func:`read_gaussian_prim` left in ``deferred`` (its ``defer_finite``), in
+    the order the prims were read: ``GaussianDataError`` naming the first prim, attribute and
+    element whose value is not finite."""
+    for checks in deferred:
+        for arr, where, name in checks:
+            _check_finite(arr, where, name)
 
 
 def _check_transformed(gs: GaussianSet, path: str, tc: Usd.TimeCode) -> GaussianSet:
