@@ -258,3 +258,21 @@ def test_no_batch_for_one_missing_layer_and_a_failed_batch(monkeypatch):
     assert shared.due(key) is None
     got = fields[1].render(everything, centres[1], SIZE, mask)
     assert fields[1].renders == 1 and all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True))
+
+
+def test_probe_cubes_drawn_together_are_each_cube_alone_bit_for_bit():
+    """``render_probe_cubes``: several cubes in one rasteriser pass (more than ``CUBES_PER_PASS``:
+    two passes), supersampled or not, each bit for bit ``render_probe_faces`` at its centre."""
+    from usd_gs.relight.probe import render_probe_cubes
+    from usd_gs.render.rasterize import CUBES_PER_PASS
+
+    everything, s = _scene()
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(-2.0, 2.0, (CUBES_PER_PASS + 1, 3))
+    for size, supersample in ((4, 1), (6, 2)):
+        together = render_probe_cubes(everything, centres, size, None, 0.0, supersample, order=np.arange(s))
+        assert len(together) == len(centres)
+        for c, got in zip(centres, together, strict=True):
+            alone = render_probe_faces(everything, c, size, None, 0.0, supersample, order=np.arange(s))
+            assert all(np.array_equal(a, b) for a, b in zip(got, alone, strict=True))
+            assert got[1].max() > 0.5  # (something drawn)

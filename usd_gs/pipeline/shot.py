@@ -1616,7 +1616,7 @@ class ShotProcessor:
         for _, job in jobs:
             far = job.get("far")
             if far is not None:
-                stores.setdefault(id(far._store), (far._store, []))[1].append(
+                stores.setdefault(id(far.store), (far.store, []))[1].append(
                     (far, job["everything"], job["centre"], self.opts.probe_size, job["mask"], PROBE_DILATION,
                      self.opts.probe_supersample))
         batches = [store.batch(requests) for store, requests in stores.values() if len(requests) > 1]

@@ -37,6 +37,10 @@ supersampling the layers are composited after the box filter. The anchor depends
 frame's probe centre and the static scene (not on what was rendered before), so a farm chunk
 renders what the whole-shot run renders. Where no static Gaussian lies beyond ``radius`` the
 result is the full render's, bit for bit.
+
+Where several probes miss their layers at one frame (a shot's first frame), :meth:`FarLayers.batch`
+plans them and a :class:`FarBatch` draws them in one rasteriser pass (one cull sweep over the far
+Gaussians for every anchor's cube; each layer bit for bit its own render).
 """
 
 from __future__ import annotations
@@ -263,6 +267,11 @@ class FarField:
         self._store = shared if shared is not None else FarLayers(KEEP)
         self.renders = 0  # far layers this prim rendered (diagnostics, tests)
         self.level = 0  # the grid level of the last render
+
+    @property
+    def store(self) -> FarLayers:
+        """The :class:`FarLayers` this prim's layers are kept in (shared by the shot's relit prims)."""
+        return self._store
 
     def anchor(self, centre, level: int = 0) -> np.ndarray:
         """The grid point (float64 (3,)) the far layer of a probe at ``centre`` is rendered from,

@@ -215,6 +215,7 @@ def render_probe_cubes(gaussians, centres, size: int = 32, mask: np.ndarray | No
         out.append((down(rgb).astype(np.float32), a.astype(np.float32), d.astype(np.float32)))
     return out
 
+
 def probe_from_latlong(img: np.ndarray, degree: int = 3, center=None) -> SHProbe:
     """Probe by direct SH projection of a lat-long radiance image (exact pixel solid angles)."""
     return _stored(envmap.project_latlong_to_sh(img, int(degree), "rh"), center)
