@@ -100,6 +100,9 @@ from usd_gs.usd.stage import open_stage, root_metadata_warnings
 
 __all__ = ["ProcessOptions", "ProcessSummary", "ShotProcessor", "default_output_path"]
 
+#: the shadow-pass task key of a batch of far layers (:meth:`ShotProcessor._far_batches`)
+FAR_BATCH = "far layers"
+
 
 class _Clock:
     def __init__(self):
@@ -350,6 +353,7 @@ class ShotProcessor:
         self._merge_locks: dict = {}
         self._merged: dict = {}
         self._far_fields: dict = {}  # relit prim -> its far-layer cache; ("layers", static count) -> their FarLayers
+        self._unchecked: list = []  # the static prims' finite checks not made yet (_read_static, _check_static)
         self._packs: dict = {}  # (moving caster, use) -> its packed-occluder buffers (_pack_buffers)
         self._task_seconds: dict = {}  # the last shadow pass's seconds per task key (its task order)
         self._local_sh_cache: dict = {}
@@ -439,7 +443,7 @@ class ShotProcessor:
         concatenated (:meth:`_static_part`: while copied, one pass less over a large scene) or
         by :meth:`_check_static` before any other use (the same named errors)."""
         t0 = time.perf_counter()
-        self._unchecked: list = []
+        self._unchecked = []
         self.static = {r.path: read_gaussian_prim(self.prims[r.path], Usd.TimeCode.EarliestTime(), check_types=False,
                                                   defer_finite=self._unchecked)
                        for r in self.roles if not r.per_frame}
@@ -448,7 +452,7 @@ class ShotProcessor:
     def _check_static(self) -> None:
         """The finite checks that :meth:`_read_static` left (``check_deferred``: ``GaussianDataError``
         naming the first static prim, attribute and element that is not finite)."""
-        unchecked, self._unchecked = getattr(self, "_unchecked", []), []
+        unchecked, self._unchecked = self._unchecked, []
         check_deferred(unchecked)
 
     # ------------------------------------------------------------------ lights
@@ -566,7 +570,7 @@ class ShotProcessor:
         if any(self.degrees.get(p, degree + 1) > degree for p in moving):
             return None
         rows = sum(self.counts[p] for p in moving) + self._merge_rows([self.counts[p] for p in moving])
-        finite: list | None = [] if getattr(self, "_unchecked", None) else None
+        finite: list | None = [] if self._unchecked else None
         whole = GaussianSet.concatenate(static + [_empty_rows(rows)], label="shot", finite=finite)
         if finite is not None and finite[0]:  # every static value is finite: their checks are made
             self._unchecked = []
@@ -615,7 +619,7 @@ class ShotProcessor:
         shadows, transfers = self._shadow_pass(sets, [lt for lt in lights if lt.kind != "dome"],
                                                first + [partial(self._probe_task, path, job) for path, job in jobs],
                                                meanwhile=partial(self._beside_tasks, frame),
-                                               extra_keys=[("far layers", i) for i in range(len(first))]
+                                               extra_keys=[(FAR_BATCH, i) for i in range(len(first))]
                                                + [p for p, _ in jobs])
         transfers = transfers[len(first):]
         t = time.perf_counter()
@@ -755,19 +759,19 @@ class ShotProcessor:
         shot's first frame, a new light): the Gaussians it draws or packs. A probe render (``extra``)
         draws the whole frame, the static scene's task builds its shot-long atlas over the static
         casters, a caster's and a self-shadow's DGSM packs the prim, the sky task is small. Where a
-        batch of far layers runs (``extra`` keyed ``("far layers", i)``, :meth:`_far_batches`), it
+        batch of far layers runs (``extra`` keyed ``(FAR_BATCH, i)``, :meth:`_far_batches`), it
         starts first and the probe renders last: started early, they would wait for its layers."""
         total = sum(g.count for g in sets.values())
         scene = self._scene_block.count if self._scene_block is not None else 0
         sizes = {"extra": total, "sky": 0, "scene": scene}
-        batch = any(key[0] == "extra" and isinstance(key[1], tuple) for key in keys)
+        batches = [key[0] == "extra" and isinstance(key[1], tuple) and key[1][0] == FAR_BATCH for key in keys]
 
-        def size(key):
-            if key[0] == "extra" and batch:  # far layers first, the probes that use them last
-                return 2 * total if isinstance(key[1], tuple) else 1
+        def size(key, batch: bool):
+            if key[0] == "extra" and any(batches):  # far layers first, the probes that use them last
+                return 2 * total if batch else 1
             return sizes[key[0]] if key[0] in sizes else sets[key[1]].count
 
-        return [size(key) for key in keys]
+        return [size(key, batch) for key, batch in zip(keys, batches, strict=True)]
 
     def _sky_task(self, sets: dict):
         """The frame's ``hidden_sky_shares`` as a task (``usd_gs.shadows.sky_occlusion``: the sky the

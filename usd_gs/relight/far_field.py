@@ -138,16 +138,15 @@ class FarLayers:
         centre, size, mask, dilation, supersample)]``, the arguments of the coming
         :meth:`FarField.render` calls (whose far fields share this store)."""
         due = []
-        for req in requests:
-            far, everything, centre = req[:3]
+        for far, everything, centre, *rest in requests:
             _, a = far.level_anchor(everything.positions[:far.static_count], centre)
             if not self.has_anchor(a):
-                due.append(req)
+                due.append((far, everything, a, *rest))
         if len(due) < 2:
             return None
         plans = {}
-        for far, everything, centre, size, mask, dilation, supersample in due:
-            _, a, key = far.key(everything, centre, size, mask, dilation, supersample)
+        for far, everything, a, size, mask, dilation, supersample in due:
+            key = far.layer_key(everything, a, size, mask, dilation, supersample)
             if key not in plans and self.get(key) is None and self.due(key) is None:
                 plans[key] = (far, everything, a, int(size), float(dilation), int(supersample), np.asarray(mask, bool))
         if len(plans) < 2:
@@ -291,12 +290,15 @@ class FarField:
     def key(self, everything, centre, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
             supersample: int = PROBE_SUPERSAMPLE) -> tuple:
         """``(level, anchor, key)`` of the far layer that :meth:`render` of these arguments draws."""
-        s = self.static_count
-        level, a = self.level_anchor(everything.positions[:s], centre)
-        # (a layer depends on its anchor, not on the level that chose it)
-        key = (*(float(v) for v in a), int(size), float(dilation), int(supersample), int(everything.count),
-               _digest(np.asarray(mask, bool)[:s]))
-        return level, a, key
+        level, a = self.level_anchor(everything.positions[:self.static_count], centre)
+        return level, a, self.layer_key(everything, a, size, mask, dilation, supersample)
+
+    def layer_key(self, everything, anchor, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
+                  supersample: int = PROBE_SUPERSAMPLE) -> tuple:
+        """The key of the far layer rendered from ``anchor`` (a layer depends on its anchor, not on the
+        level that chose it)."""
+        return (*(float(v) for v in anchor), int(size), float(dilation), int(supersample), int(everything.count),
+                _digest(np.asarray(mask, bool)[:self.static_count]))
 
     def split(self, everything, anchor, mask: np.ndarray) -> tuple:
         """``(near, far)``: the increasing indices of the static Gaussians drawn (``mask``) within
