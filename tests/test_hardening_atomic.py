@@ -182,3 +182,35 @@ def test_an_interrupt_waits_until_the_temp_file_is_in_hand(tmp_path, monkeypatch
         assert list(tmp_path.iterdir()) == []
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_a_signal_deferred_past_an_import_also_waits_until_the_temp_file_is_in_hand(tmp_path, monkeypatch):
+    """usdgs raises a SIGTERM that landed inside a module import from its SIGALRM handler once the
+    import is done (``usd_gs.cli._on_recheck``); when that SIGALRM comes right after atomic_output's
+    temporary file is created, it is held like a SIGTERM: ``Terminated`` arrives once the file is
+    in hand, and nothing is left behind."""
+    import os
+    import signal
+    import tempfile
+
+    from usd_gs import cli
+    from usd_gs.io import atomic
+
+    real = tempfile.mkstemp
+
+    def mkstemp_then_deferred_sigterm(*args, **kwargs):
+        out = real(*args, **kwargs)
+        cli._PENDING[:] = [signal.SIGTERM]  # (as _on_signal leaves it for a SIGTERM inside an import)
+        os.kill(os.getpid(), signal.SIGALRM)
+        return out
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp_then_deferred_sigterm)
+    previous = cli._install_signal_handlers()
+    try:
+        with pytest.raises(cli.Terminated):
+            with atomic.atomic_output(tmp_path / "out.usdc") as tmp:
+                tmp.write_text("never")
+        assert list(tmp_path.iterdir()) == [] and not cli._PENDING
+    finally:
+        cli._PENDING.clear()
+        cli._restore_signals(previous)

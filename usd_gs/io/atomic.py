@@ -96,8 +96,10 @@ def signals_held() -> Iterator[None]:
     """SIGINT and SIGTERM that arrive while the block runs are noted and handed to the handlers
     they would have met once it ends (in the main thread, where Python runs signal handlers;
     elsewhere nothing changes): a Ctrl-C cannot land between creating a file and taking charge
-    of it. Python handlers are swapped, not the signal mask: any thread may receive a signal
-    sent to the process."""
+    of it. SIGALRM is held likewise: ``usdgs`` raises a SIGINT or SIGTERM that landed inside a
+    module import from its SIGALRM handler once the import is done (``usd_gs.cli``), so that one
+    too waits for the block's end. Python handlers are swapped, not the signal mask: any thread
+    may receive a signal sent to the process."""
     import signal
     import sys
     import threading
@@ -112,7 +114,7 @@ def signals_held() -> Iterator[None]:
 
     previous = {}
     try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGALRM):
             previous[sig] = signal.signal(sig, note)
     except (ValueError, OSError):  # (an embedding that does not allow it: as before)
         for sig, handler in previous.items():
@@ -124,12 +126,12 @@ def signals_held() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
-        if noted:
-            handler = previous[noted[0]]
+        for signum in dict.fromkeys(noted):  # (in the order they came, each once, until one raises)
+            handler = previous[signum]
             if callable(handler):
-                handler(noted[0], sys._getframe())
+                handler(signum, sys._getframe())
             elif handler == signal.SIG_DFL:
-                os.kill(os.getpid(), noted[0])
+                os.kill(os.getpid(), signum)
 
 
 def check_writable_folder(folder, what: str) -> None:
