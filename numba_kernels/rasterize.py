@@ -86,6 +86,7 @@ _MX, _MY, _CA, _CB, _CC, _OP, _R, _G, _B, _Z, _J0, _J1, _I0, _I1, _QC = range(15
 _NF = 16
 _GATHER = 64  # records copied per batch in _blend_tile
 _CHUNK = 256  # Gaussians per call of the parallel loop's body in _write_entries (_write_range)
+_CULL_ROWS = 512  # entries _cull gathers into columns at a time (its work arrays stay in the L1/L2 cache)
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -229,6 +230,80 @@ def _sh_color(sh, g, dx, dy, dz):
     return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
 
 
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _early_pass(m, px_, py_, pz_, smax_, cams, k, width, height, sdil, dilation, out):
+    """``out[j]``: camera ``k`` keeps rows ``j < m`` of the gathered centres and largest scales
+    after the cull's tests that need no log or square root (``_cull``'s docstring: depth range,
+    division-free side rejects, ``_misses_centres``), the same float64 operations in the same order
+    as those tests; written without an early exit, so that the loop vectorises."""
+    c0, c1, c2, c3, c4, c5 = cams[k, 0], cams[k, 1], cams[k, 2], cams[k, 3], cams[k, 4], cams[k, 5]
+    c6, c7, c8, t0, t1, t2 = cams[k, 6], cams[k, 7], cams[k, 8], cams[k, 9], cams[k, 10], cams[k, 11]
+    fx, fy, cx, cy = cams[k, 12], cams[k, 13], cams[k, 14], cams[k, 15]
+    near, far = cams[k, 16], cams[k, 17]
+    l0, l1, l2, l3 = cams[k, 18], cams[k, 19], cams[k, 20], cams[k, 21]
+    jb = cams[k, 22]
+    wr = width - 0.5
+    hr = height - 0.5
+    for j in range(m):
+        px, py, pz, smax = px_[j], py_[j], pz_[j], smax_[j]
+        z = c6 * px + c7 * py + c8 * pz + t2
+        x = c0 * px + c1 * py + c2 * pz + t0
+        y = c3 * px + c4 * py + c5 * pz + t1
+        ez = (SQRT_Q_MAX * (smax * jb + sdil * z)) * 1.001 + 1e-3 * z
+        ux = fx * x + cx * z
+        vy = fy * y + cy * z
+        keep = (z > near) & (z <= far)
+        keep = keep & ~((ux + ez < 0.5 * z) | (ux - ez > wr * z) | (vy + ez < 0.5 * z) | (vy - ez > hr * z))
+        iz = 1.0 / z
+        u = fx * x * iz + cx
+        v = fy * y * iz + cy
+        xi = x * iz
+        yi = y * iz
+        tx = xi if xi > l0 else l0
+        tx = tx if tx < l1 else l1
+        ty = yi if yi > l2 else l2
+        ty = ty if ty < l3 else l3
+        s2 = smax * smax
+        ax = s2 * (fx * iz) ** 2 * (1.0 + tx * tx) + dilation
+        ay = s2 * (fy * iz) ** 2 * (1.0 + ty * ty) + dilation
+        miss = _misses_centres(u, ax) | _misses_centres(v, ay)
+        out[j] = keep & ~miss
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _support_pass(m, px_, py_, pz_, smax_, qcut_, cams, k, width, height, dilation, out):
+    """``out[j]``: camera ``k``'s image holds a pixel centre within the support bound of rows ``j < m``
+    (``qcut_``: each row's ``_support_q``), :func:`_pixel_range` of both half-extents not empty, the
+    same float64 operations in the same order as ``_cull``'s last test; vectorises as
+    :func:`_early_pass`."""
+    c0, c1, c2, c3, c4, c5 = cams[k, 0], cams[k, 1], cams[k, 2], cams[k, 3], cams[k, 4], cams[k, 5]
+    c6, c7, c8, t0, t1, t2 = cams[k, 6], cams[k, 7], cams[k, 8], cams[k, 9], cams[k, 10], cams[k, 11]
+    fx, fy, cx, cy = cams[k, 12], cams[k, 13], cams[k, 14], cams[k, 15]
+    l0, l1, l2, l3 = cams[k, 18], cams[k, 19], cams[k, 20], cams[k, 21]
+    for j in range(m):
+        px, py, pz, smax, qcut = px_[j], py_[j], pz_[j], smax_[j], qcut_[j]
+        z = c6 * px + c7 * py + c8 * pz + t2
+        x = c0 * px + c1 * py + c2 * pz + t0
+        y = c3 * px + c4 * py + c5 * pz + t1
+        iz = 1.0 / z
+        u = fx * x * iz + cx
+        v = fy * y * iz + cy
+        xi = x * iz
+        yi = y * iz
+        tx = xi if xi > l0 else l0
+        tx = tx if tx < l1 else l1
+        ty = yi if yi > l2 else l2
+        ty = ty if ty < l3 else l3
+        s2 = smax * smax
+        ax = s2 * (fx * iz) ** 2 * (1.0 + tx * tx) + dilation
+        ay = s2 * (fy * iz) ** 2 * (1.0 + ty * ty) + dilation
+        ebx = math.sqrt(qcut * ax) * (1.0 + 1e-6) + 1e-6
+        eby = math.sqrt(qcut * ay) * (1.0 + 1e-6) + 1e-6
+        j0, j1 = _pixel_range(u, ebx, width)
+        i0, i1 = _pixel_range(v, eby, height)
+        out[j] = (j1 >= j0) & (i1 >= i0)
+
+
 @njit(**threaded(), cache=True, fastmath=False, error_model="numpy")
 def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, height, dilation, bstart, bmask,
           vis):
@@ -243,14 +318,24 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     guard band, as built by ``rasterize``.
 
     A camera the splat misses by far (the other faces of a cube render, most of a wide scene) is
-    rejected first without a division and without the support's log: with ``e <= sqrt(q) (smax A /
-    z + sqrt(dilation)) <= SQRT_Q_MAX (...)`` (the
-    half-extent bound below, ``sqrt(a + b) <= sqrt(a) + sqrt(b)``), the centre's pixel ``u = fx x
-    / z + cx`` lies left of the image by more than ``e`` when ``fx x + (cx - 0.5) z + SQRT_Q_MAX (smax
-    A + sqrt(dilation) z) < 0`` (likewise right, above, below); the test keeps a relative margin
-    of 1e-3 and 1e-3 px, so it rejects only what the full test rejects. A splat on the image whose
-    largest possible half-extents (``_misses_centres``) hold no pixel centre along u or v is
-    rejected next, still without the log and the square roots (a far scene's sub-pixel splats).
+    rejected first without the support's log: with ``e <= sqrt(q) (smax A / z + sqrt(dilation))
+    <= SQRT_Q_MAX (...)`` (the half-extent bound below, ``sqrt(a + b) <= sqrt(a) + sqrt(b)``), the
+    centre's pixel ``u = fx x / z + cx`` lies left of the image by more than ``e`` when ``fx x +
+    (cx - 0.5) z + SQRT_Q_MAX (smax A + sqrt(dilation) z) < 0`` (likewise right, above, below); the
+    test keeps a relative margin of 1e-3 and 1e-3 px, so it rejects only what the full test
+    rejects. A splat on the image whose largest possible half-extents (``_misses_centres``) hold
+    no pixel centre along u or v is rejected next (a far scene's sub-pixel splats). What passes
+    gets the full bound: the bounding box's half-extents along u and v are ``sqrt(q)`` times the
+    square roots of the projected covariance's diagonal, ``|J_row V R S|^2 + dilation <= smax^2
+    |J_row|^2 + dilation`` (V and R orthonormal), with ``|J_row0|^2 = (fx / z)^2 (1 + tx^2)`` and
+    likewise for v, ``q = _support_q(opacity)``; the bit is set where both
+    :func:`_pixel_range` are not empty.
+
+    Layout: the entries are taken :data:`_CULL_ROWS` at a time; the kept ones' centres and largest
+    scales are gathered into float64 columns, then each candidate camera's tests without a log
+    (:func:`_early_pass`) and, for the pairs that pass, the full bound (:func:`_support_pass`) run
+    as branch-free loops over those columns (vectorised), each the same float64 operations as the
+    per-pair test: the bits are those of testing pair by pair.
     """
     n = positions.shape[0]
     ncam = cams.shape[0]
@@ -258,64 +343,79 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     use_order = order.shape[0] > 0
     sdil = math.sqrt(max(dilation, 0.0))
     nb = bstart.shape[0] - 1
-    blk = np.searchsorted(bstart, i0_, side="right") - 1 if nb > 0 else -1
     every = (np.int64(1) << ncam) - 1
-    for k_ in range(i0_, i1_):
-        while 0 <= blk < nb and k_ >= bstart[blk + 1]:
-            blk += 1
-        cand = bmask[blk] if 0 <= blk < nb else every
-        g = order[k_] if use_order else k_
-        vis[k_] = 0
-        if use_mask and not include[g]:
-            continue
-        op = np.float64(opacities[g])
-        if not op >= ALPHA_MIN:  # also drops NaN
-            continue
-        op = min(1.0, op)
-        px = np.float64(positions[g, 0])
-        py = np.float64(positions[g, 1])
-        pz = np.float64(positions[g, 2])
-        smax = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])), abs(np.float64(scales[g, 2]))))
-        bits = 0
-        qcut = -1.0
-        for k in range(ncam):
-            if not (cand >> k) & 1:
-                continue
-            z = cams[k, 6] * px + cams[k, 7] * py + cams[k, 8] * pz + cams[k, 11]
-            if not (z > cams[k, 16] and z <= cams[k, 17]):
-                continue
-            x = cams[k, 0] * px + cams[k, 1] * py + cams[k, 2] * pz + cams[k, 9]
-            y = cams[k, 3] * px + cams[k, 4] * py + cams[k, 5] * pz + cams[k, 10]
-            # division-free reject (docstring): z * (e bound + margin), then each side of the image; the
-            # bound takes the largest support SQRT_Q_MAX >= sqrt(q) (the log only for what passes)
-            ez = (SQRT_Q_MAX * (smax * cams[k, 22] + sdil * z)) * 1.001 + 1e-3 * z
-            ux = cams[k, 12] * x + cams[k, 14] * z
-            vy = cams[k, 13] * y + cams[k, 15] * z
-            if (ux + ez < 0.5 * z or ux - ez > (width - 0.5) * z or vy + ez < 0.5 * z
-                    or vy - ez > (height - 0.5) * z):
-                continue
-            iz = 1.0 / z
-            u = cams[k, 12] * x * iz + cams[k, 14]
-            v = cams[k, 13] * y * iz + cams[k, 15]
-            # the bounding box's half-extents along u and v are sqrt(q) times the square roots of the
-            # projected covariance's diagonal, |J_row V R S|^2 + dilation <= smax^2 |J_row|^2 + dilation
-            # (V and R orthonormal), with |J_row0|^2 = (fx / z)^2 (1 + tx^2) and likewise for v
-            tx = min(cams[k, 19], max(cams[k, 18], x * iz))
-            ty = min(cams[k, 21], max(cams[k, 20], y * iz))
-            s2 = smax * smax
-            ax = s2 * (cams[k, 12] * iz) ** 2 * (1.0 + tx * tx) + dilation
-            ay = s2 * (cams[k, 13] * iz) ** 2 * (1.0 + ty * ty) + dilation
-            if _misses_centres(u, ax) or _misses_centres(v, ay):
-                continue
-            if qcut < 0.0:
-                qcut = _support_q(op)
-            ebx = math.sqrt(qcut * ax) * (1.0 + 1e-6) + 1e-6
-            eby = math.sqrt(qcut * ay) * (1.0 + 1e-6) + 1e-6
-            j0, j1 = _pixel_range(u, ebx, width)
-            i0, i1 = _pixel_range(v, eby, height)
-            if j1 >= j0 and i1 >= i0:
-                bits |= np.int64(1) << k
-        vis[k_] = bits
+    rows = np.empty(_CULL_ROWS, np.int64)  # the entries of the rows gathered
+    px = np.empty(_CULL_ROWS)
+    py = np.empty(_CULL_ROWS)
+    pz = np.empty(_CULL_ROWS)
+    smax = np.empty(_CULL_ROWS)
+    op = np.empty(_CULL_ROWS)
+    bits = np.empty(_CULL_ROWS, np.int64)
+    passed = np.empty(_CULL_ROWS, np.bool_)
+    # the rows some camera kept, gathered again for the full bound
+    at = np.empty(_CULL_ROWS, np.int64)
+    qx = np.empty(_CULL_ROWS)
+    qy = np.empty(_CULL_ROWS)
+    qz = np.empty(_CULL_ROWS)
+    qs = np.empty(_CULL_ROWS)
+    qcut = np.empty(_CULL_ROWS)
+    blk = np.searchsorted(bstart, i0_, side="right") - 1 if nb > 0 else -1
+    e = i0_
+    while e < i1_:
+        # the next run of entries with one camera set: a block, or the entries outside every block
+        if nb > 0 and blk < 0:
+            end, cand = min(i1_, bstart[0]), every
+        elif 0 <= blk < nb:
+            end, cand = min(i1_, bstart[blk + 1]), bmask[blk]
+        else:
+            end, cand = i1_, every
+        if cand == 0:
+            vis[e:end] = 0
+        for s0 in range(e, end if cand != 0 else e, _CULL_ROWS):
+            s1 = min(end, s0 + _CULL_ROWS)
+            m = 0
+            for k_ in range(s0, s1):
+                vis[k_] = 0
+                g = order[k_] if use_order else k_
+                o = np.float64(opacities[g])
+                if not o >= ALPHA_MIN or (use_mask and not include[g]):  # (also drops NaN)
+                    continue
+                rows[m] = k_
+                op[m] = min(1.0, o)
+                px[m] = np.float64(positions[g, 0])
+                py[m] = np.float64(positions[g, 1])
+                pz[m] = np.float64(positions[g, 2])
+                smax[m] = max(abs(np.float64(scales[g, 0])), max(abs(np.float64(scales[g, 1])),
+                                                                 abs(np.float64(scales[g, 2]))))
+                bits[m] = 0
+                m += 1
+            for k in range(ncam):
+                if (cand >> k) & 1:
+                    _early_pass(m, px, py, pz, smax, cams, k, width, height, sdil, dilation, passed)
+                    bit = np.int64(1) << k
+                    for j in range(m):
+                        if passed[j]:
+                            bits[j] |= bit
+            kept = 0
+            seen = np.int64(0)
+            for j in range(m):
+                if bits[j] != 0:
+                    at[kept] = j
+                    qx[kept], qy[kept], qz[kept], qs[kept] = px[j], py[j], pz[j], smax[j]
+                    qcut[kept] = _support_q(op[j])
+                    seen |= bits[j]
+                    kept += 1
+            for k in range(ncam):
+                if (seen >> k) & 1:
+                    _support_pass(kept, qx, qy, qz, qs, qcut, cams, k, width, height, dilation, passed)
+                    clear = ~(np.int64(1) << k)
+                    for t in range(kept):
+                        if not passed[t]:
+                            bits[at[t]] &= clear
+            for j in range(m):
+                vis[rows[j]] = bits[j]
+        e = end
+        blk += 1
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")

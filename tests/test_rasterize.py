@@ -205,6 +205,64 @@ def test_cull_early_reject_keeps_every_pair_the_full_bound_keeps(dilation):
         assert np.mean(vis != 0) > 0.05 and kept < 0.8 * front
 
 
+def test_cull_in_columns_gives_each_pairs_own_bits_with_masks_orders_blocks_and_bad_rows():
+    """``_cull`` gathers rows into columns and tests each camera over them in vectorised loops
+    (``_early_pass``, ``_support_pass``): its bits are those of the full bound pair by pair (numpy,
+    float64), for three cubes at once (18 cameras) over bricks near and 40 m away, with a mask, with
+    an order, with block camera masks, across its row batches (``_CULL_ROWS``), and with rows whose
+    centre or opacity is NaN or infinite (never kept) and opacities below 1/255."""
+    from numba_kernels import rasterize as kr
+    from numba_kernels.capsule import block_scale_bound, block_spheres
+    from usd_gs.render.camera import cube_face_cameras
+
+    rng = np.random.default_rng(21)
+    parts = []
+    for i in range(12):  # bricks of ~700 rows: some cross a row batch, near ones straddle faces
+        m = int(rng.integers(300, 1400))
+        centre = rng.normal(0.0, 1.0, 3) * (1.5 if i < 6 else 40.0)
+        parts.append(centre + rng.normal(0.0, rng.uniform(0.1, 2.0), (m, 3)))
+    pos = np.concatenate(parts).astype(np.float32)
+    n = len(pos)
+    scales = np.exp(rng.uniform(np.log(1e-4), np.log(0.5), (n, 3))).astype(np.float32)
+    opac = rng.uniform(0.0, 1.0, n).astype(np.float32)
+    bad = rng.choice(n, 12, replace=False)
+    pos[bad[:4], 0] = np.nan
+    pos[bad[4:8], 2] = np.inf
+    opac[bad[8:]] = np.nan
+    starts = np.array([0, *np.cumsum([len(p) for p in parts])], np.int64)
+    cams = [c for centre in ([0.0, 0.2, 0.0], [1.5, 0.2, 0.0], [0.0, 0.2, 1.5])
+            for c in cube_face_cameras(np.array(centre), 32, near=0.05)]
+    vm = [c.view_matrix() for c in cams]
+    packed, _ = kr.camera_rows(np.stack([v[0] for v in vm]), np.stack([v[1] for v in vm]),
+                               np.stack([c.intrinsics() for c in cams]), np.array([[c.near, c.far] for c in cams]),
+                               32, 32, 1.3)
+    want = _full_cull_bits(pos, scales, opac, cams, 32, 32, 0.0)
+    assert np.all(want[bad] == 0) and np.mean(want != 0) > 0.05
+    none = np.zeros(0, np.int64)
+    centres, radii = block_spheres(pos, starts)
+    blocks = kr._block_masks((starts, centres, radii, block_scale_bound(scales, starts)), np.zeros(0, np.int64), n,
+                             packed, 32, 32, 0.0)
+    include = rng.uniform(size=n) < 0.7
+    order = np.flatnonzero(rng.uniform(size=n) < 0.5).astype(np.int64)
+    cases = [("plain", np.zeros(0, bool), none, (none, none), want),
+             ("blocks", np.zeros(0, bool), none, blocks, want),
+             ("mask", include, none, (none, none), np.where(include, want, 0)),
+             ("order and blocks", np.zeros(0, bool), order,
+              kr._block_masks((starts, centres, radii, block_scale_bound(scales, starts)), order, n, packed, 32, 32,
+                              0.0), want[order])]
+    for name, inc, ordr, (bstart, bmask), expect in cases:
+        vis = np.full(len(expect), -1, np.int64)
+        kr._cull(0, len(expect), pos, scales, opac, inc, ordr, packed, 32, 32, 0.0, bstart, bmask, vis)
+        assert np.array_equal(vis, expect), name
+        part = np.full(len(expect), -1, np.int64)  # ranges as run_chunks gives them: the same bits
+        for lo in range(0, len(expect), 997):
+            kr._cull(lo, min(len(expect), lo + 997), pos, scales, opac, inc, ordr, packed, 32, 32, 0.0, bstart,
+                     bmask, part)
+        assert np.array_equal(part, expect), name
+    far = starts[6]  # the far bricks: most of their rows are decided without the support's log
+    assert np.mean(want[far:] != 0) < 0.5
+
+
 def test_a_splat_missing_every_pixel_centre_is_rejected_before_its_support_is_sized():
     """``_misses_centres`` (the cull's test before the support's log and square root) says "no centre"
     only where :func:`_pixel_range` of the largest half-extent the cull can compute from that
