@@ -370,8 +370,8 @@ class GaussianSet:
         ``logit_opacities`` are kept only if every input has them; ``extras`` only for
         keys (with equal trailing shape) present in every input. ``finite``: None, or a list to
         which one bool is appended: whether every position, orientation, scale, opacity and SH
-        coefficient of the result is finite (:func:`all_finite` of each input's rows as they are
-        copied, while they are in cache: no second pass over the inputs).
+        coefficient of the result is finite (each value tested as it is copied,
+        ``numba_kernels.copy_finite``: no second pass over the inputs).
         """
         if not sets:
             return GaussianSet.empty(label=label)
@@ -391,29 +391,33 @@ class GaussianSet:
                "sh": np.empty((n, sh3dgs.num_coeffs(degree), 3), np.float32)}
 
         bad: list = []  # row ranges with a value that is not finite (where ``finite`` is asked for)
-
-        def check(a: int, b: int) -> None:
-            if b > a and not all(all_finite(arr[a:b]) for arr in out.values()):
-                bad.append((a, b))
+        if finite is not None:
+            from numba_kernels.copy_finite import copy_finite, copy_finite_padded
 
         def fill(lo: int, hi: int) -> None:
-            unchecked = lo  # (rows copied since the last check: checked some 8k rows at a time, in cache)
             for i in range(int(np.searchsorted(starts, lo, "right")) - 1, len(sets)):
                 a, b = max(lo, int(starts[i])), min(hi, int(starts[i + 1]))
                 if a >= hi:
                     break
-                if b > a:
-                    g, r0, r1 = sets[i], a - int(starts[i]), b - int(starts[i])
+                if b <= a:
+                    continue
+                g, r0, r1 = sets[i], a - int(starts[i]), b - int(starts[i])
+                k = g.sh.shape[1]
+                if finite is None:
                     for name in ("positions", "orientations", "scales", "opacities"):
                         out[name][a:b] = getattr(g, name)[r0:r1]
-                    k = g.sh.shape[1]
                     out["sh"][a:b, :k] = g.sh[r0:r1]
                     out["sh"][a:b, k:] = 0.0
-                    if finite is not None and b - unchecked >= FINITE_ROWS:
-                        check(unchecked, b)
-                        unchecked = b
-            if finite is not None:
-                check(unchecked, hi)
+                    continue
+                # each value read once: copied and checked in one pass (numba_kernels.copy_finite)
+                ok = all([copy_finite(np.ascontiguousarray(getattr(g, name)[r0:r1]), out[name][a:b])
+                          for name in ("positions", "orientations", "scales", "opacities")])
+                sh = np.ascontiguousarray(g.sh[r0:r1])
+                kk = out["sh"].shape[1]
+                ok &= (copy_finite(sh, out["sh"][a:b]) if k == kk else
+                       copy_finite_padded(sh, out["sh"][a:b], 3 * k, 3 * kk))
+                if not ok:
+                    bad.append((a, b))
 
         if sum(a.nbytes for a in out.values()) >= PARALLEL_COPY_BYTES:
             from numba_kernels.thread_chunks import run_chunks
@@ -446,8 +450,6 @@ def all_finite(arr: np.ndarray) -> bool:
 
 #: bytes from which :meth:`GaussianSet.concatenate` fills its result in threads
 PARALLEL_COPY_BYTES = 64 << 20
-#: rows :meth:`GaussianSet.concatenate` copies between two finite checks (``finite``): about 1 MB
-FINITE_ROWS = 8192
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
