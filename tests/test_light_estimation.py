@@ -292,6 +292,37 @@ def test_far_gaussians_change_nothing_and_are_not_scanned(scene_deg0, monkeypatc
         estimate_lights(bad, c, k=2)
 
 
+def test_point_and_planar_estimates_share_one_roi_through_the_blocks(scene_deg0, monkeypatch):
+    """With the scene's rows as ``PointBlocks`` (the pipeline's static bricks), the point and the
+    planar estimates select and copy the ROI once (``PointBlocks.memo``), with the lights of the
+    row-by-row path bit for bit; another scene object with the same centre selects its own."""
+    import usd_gs.relight.light_estimation as le
+    from usd_gs.gaussians import GaussianSet as GS
+    from usd_gs.point_blocks import PointBlocks, block_starts
+
+    g, c = scene_deg0.gaussians, scene_deg0.centroid
+    far = GaussianSet.concatenate([g, g, g])
+    far.positions[:] += np.float32([40.0, 0.0, 0.0])
+    both = GaussianSet.concatenate([far, g])
+    blocks = PointBlocks(block_starts([(0, far.count), (far.count, both.count)]))
+    copies = []
+    subset = GS.subset
+    monkeypatch.setattr(GS, "subset", lambda self, index: copies.append(self.count) or subset(self, index))
+    lights = estimate_lights(both, c, k=3, values_checked=True, blocks=blocks)
+    rects = le.estimate_rect_lights(both, c, values_checked=True, blocks=blocks)
+    assert copies == [both.count]  # one ROI copy for the two estimates
+    plain = estimate_lights(both, c, k=3, values_checked=True)
+    plain_rects = le.estimate_rect_lights(both, c, values_checked=True)
+    assert len(copies) == 3  # (without blocks: one each)
+    assert [(a.index, a.position.tolist(), a.color.tolist(), a.intensity, a.score) for a in lights] == \
+        [(a.index, a.position.tolist(), a.color.tolist(), a.intensity, a.score) for a in plain]
+    assert len(lights) == 3 and lights[0].index >= far.count
+    assert repr(rects) == repr(plain_rects)
+    other = replace(both, positions=both.positions.copy())
+    estimate_lights(other, c, k=3, values_checked=True, blocks=blocks)
+    assert len(copies) == 4  # (another owner: its own ROI, not the first scene's)
+
+
 def test_alpha_weighted_centroid():
     g = _random_set(50, 0, seed=9)
     a = g.opacities.astype(np.float64)

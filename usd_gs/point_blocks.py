@@ -68,6 +68,7 @@ class PointBlocks:
         self._spheres = None
         self._reach: dict = {}  # factor -> block_reach of the scales the first call gave
         self._scale_bound = None  # block_scale_bound of the scales the first cull_bounds call gave
+        self._memo: dict = {}  # key -> (owner, value): memo()
         self._lock = threading.Lock()
 
     def _spheres_of(self, positions: np.ndarray):
@@ -75,6 +76,20 @@ class PointBlocks:
             if self._spheres is None:
                 self._spheres = block_spheres(positions, self.starts)
             return self._spheres
+
+    def memo(self, key, owner, compute):
+        """``compute()`` once per hashable ``key`` and ``owner`` (the object the value is derived from,
+        e.g. the point set: a later call with another owner computes again and keeps its own): values
+        that several callers derive from these same rows, such as the light estimate's region of
+        interest that two estimates ask for. The value is shared: callers must not modify it."""
+        with self._lock:
+            hit = self._memo.get(key)
+        if hit is not None and hit[0] is owner:
+            return hit[1]
+        value = compute()
+        with self._lock:
+            self._memo[key] = (owner, value)
+        return value
 
     @classmethod
     def of_ranges(cls, ranges) -> PointBlocks | None:

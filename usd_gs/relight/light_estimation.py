@@ -162,7 +162,8 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float, values
     non-finite value anywhere keeps the whole scene (the kernel names the element);
     ``values_checked``: the caller vouches that every value is finite (no scan for them);
     ``blocks``: None, or the scene's rows as ``usd_gs.point_blocks.PointBlocks`` (the ball test decided
-    block by block: the same rows)."""
+    block by block: the same rows; the result kept there, shared by the calls for the same scene,
+    centre and radius: the caller must not modify it)."""
     from usd_gs.point_blocks import within_ball
     from usd_gs.usd.gaussian_layer import all_finite
 
@@ -170,11 +171,18 @@ def _roi_scene(scene: GaussianSet, centre: np.ndarray, roi_radius: float, values
         return scene, None
     if not (values_checked or all(all_finite(a) for a in (scene.positions, scene.opacities, scene.sh))):
         return scene, None
-    # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
-    near = np.flatnonzero(within_ball(blocks, scene.positions, centre, float(roi_radius)))
-    if near.size > scene.count // 2:
-        return scene, None
-    return scene.subset(near), near
+
+    def roi():
+        # (the same float64 test as the kernel's: |p - c|^2 <= r^2)
+        near = np.flatnonzero(within_ball(blocks, scene.positions, centre, float(roi_radius)))
+        if near.size > scene.count // 2:
+            return scene, None
+        return scene.subset(near), near
+
+    if blocks is None:
+        return roi()
+    # (the point and planar estimates ask for the same region: selected and copied once)
+    return blocks.memo(("roi", *(float(v) for v in np.asarray(centre).reshape(3)), float(roi_radius)), scene, roi)
 
 
 def estimate_lights(scene: GaussianSet, avatar_centroid, k: int = 2,
