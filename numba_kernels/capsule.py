@@ -227,14 +227,16 @@ def block_spheres(positions, starts) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True, **threaded(), fastmath=False)
 def _block_scale_bound(b0, b1, scales, starts, out):
     for b in range(b0, b1):
-        m_max = 0.0
+        # three running maxima and a NaN flag, without an early exit (the loop vectorises)
+        m0 = m1 = m2 = np.float32(0.0)
+        nan = False
         for m in range(starts[b], starts[b + 1]):
-            s0, s1, s2 = abs(np.float64(scales[m, 0])), abs(np.float64(scales[m, 1])), abs(np.float64(scales[m, 2]))
-            if not (s0 == s0 and s1 == s1 and s2 == s2):  # NaN: no bound (max would skip it)
-                m_max = math.nan
-                break
-            m_max = max(m_max, s0, s1, s2)
-        out[b] = m_max
+            s0, s1, s2 = abs(scales[m, 0]), abs(scales[m, 1]), abs(scales[m, 2])
+            nan |= (s0 != s0) | (s1 != s1) | (s2 != s2)
+            m0 = s0 if s0 > m0 else m0
+            m1 = s1 if s1 > m1 else m1
+            m2 = s2 if s2 > m2 else m2
+        out[b] = math.nan if nan else max(np.float64(m0), max(np.float64(m1), np.float64(m2)))
 
 
 def block_scale_bound(scales, starts) -> np.ndarray:

@@ -197,6 +197,9 @@ def test_a_batch_renders_the_missing_far_layers_in_one_pass_bit_for_bit(monkeypa
     assert batch is not None and len(batch.plans) == 3 and calls == []
     batch.run()
     assert calls == [3] and [f.renders for f in fields] == [1, 1, 1]
+    # the three balls hold the same rows: their split is made once (FarField.split's ``seen``)
+    near = [shared.get(key)[0] for key in batch.plans]
+    assert near[0].size == 3000 and near[1] is near[0] and near[2] is near[0]
     for f, c, ref in zip(fields, centres, refs, strict=True):
         got = f.render(everything, c, SIZE, mask)
         assert all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True))
@@ -276,3 +279,26 @@ def test_probe_cubes_drawn_together_are_each_cube_alone_bit_for_bit():
             alone = render_probe_faces(everything, c, size, None, 0.0, supersample, order=np.arange(s))
             assert all(np.array_equal(a, b) for a, b in zip(got, alone, strict=True))
             assert got[1].max() > 0.5  # (something drawn)
+
+
+def test_a_split_is_reused_only_for_the_same_rows_within_and_drawn():
+    """``FarField.split(..., seen)`` returns an earlier split's arrays only where the ball holds the
+    same static rows and the same rows are drawn; otherwise it makes its own, equal to a split
+    without ``seen``."""
+    everything, s, mask, _ = _three_probes()
+    field = FarField(10.0, 0.05, s, FarLayers(6))
+    seen: list = []
+    a = field.split(everything, np.zeros(3), mask, seen)
+    b = field.split(everything, np.array([0.3, 0.0, 0.0]), mask, seen)
+    assert b[0] is a[0] and b[1] is a[1]
+    fewer = mask.copy()
+    fewer[7] = False
+    c = field.split(everything, np.array([0.3, 0.0, 0.0]), fewer, seen)
+    own = field.split(everything, np.array([0.3, 0.0, 0.0]), fewer)
+    assert c[1] is not a[1] and np.array_equal(c[0], own[0]) and np.array_equal(c[1], own[1])
+    assert 7 not in c[0] and 7 not in c[1] and len(seen) == 2
+    moved = np.array([60.0, 0.0, 0.0])  # another ball: other rows within
+    d = field.split(everything, moved, mask, seen)
+    ref = field.split(everything, moved, mask)
+    assert d[1] is not a[1] and np.array_equal(d[1], ref[1])
+    assert (d[0] is None) == (ref[0] is None) and (d[0] is None or np.array_equal(d[0], ref[0]))

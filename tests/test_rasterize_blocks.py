@@ -111,10 +111,13 @@ def test_block_scale_bound_is_the_largest_absolute_scale():
     rng = np.random.default_rng(4)
     s = rng.normal(0.0, 0.1, (1000, 3)).astype(np.float32)
     s[500, 1] = np.nan
+    s[498, 2] = -np.inf
+    s[501, 0] = np.inf  # (the NaN's block: still NaN)
     starts = np.array([0, 10, 10, 499, 700, 1000], np.int64)
     got = block_scale_bound(s, starts)
     assert got[1] == 0.0 and np.isnan(got[3])  # an empty block, the block with the NaN
-    for b in (0, 2, 4):
+    assert got[2] == np.inf  # an infinite scale: no finite bound
+    for b in (0, 4):
         assert got[b] == np.abs(s[starts[b]:starts[b + 1]]).astype(np.float64).max()
 
 

@@ -167,10 +167,12 @@ class FarLayers:
         too): layers with the same far Gaussians and render settings drawn in one pass
         (``render_probe_cubes``: each bit for bit its own render)."""
         groups: list = []  # [far indices, everything, settings, [(key, far field, anchor, near indices)]]
+        seen: dict = {}  # (id(everything), radius) -> the splits made (FarField.split)
         for key, (far, everything, a, size, dilation, supersample, mask) in batch.plans.items():
-            near, beyond = far.split(everything, a, mask)
+            near, beyond = far.split(everything, a, mask, seen.setdefault((id(everything), far.radius), []))
             for g in groups:
-                if g[1] is everything and g[2] == (size, dilation, supersample) and np.array_equal(g[0], beyond):
+                if g[1] is everything and g[2] == (size, dilation, supersample) and (
+                        g[0] is beyond or np.array_equal(g[0], beyond)):
                     g[3].append((key, far, a, near))
                     break
             else:
@@ -300,14 +302,23 @@ class FarField:
         return (*(float(v) for v in anchor), int(size), float(dilation), int(supersample), int(everything.count),
                 _digest(np.asarray(mask, bool)[:self.static_count]))
 
-    def split(self, everything, anchor, mask: np.ndarray) -> tuple:
+    def split(self, everything, anchor, mask: np.ndarray, seen: list | None = None) -> tuple:
         """``(near, far)``: the increasing indices of the static Gaussians drawn (``mask``) within
-        ``radius`` of ``anchor`` (None where none lies beyond) and beyond it."""
+        ``radius`` of ``anchor`` (None where none lies beyond) and beyond it. ``seen``: None, or a
+        list of earlier splits of the same static part (kept there): where one had the same rows
+        within the radius and the same drawn rows (nearby anchors of a batch, whose ball holds
+        the same bricks), its arrays are returned, not made again."""
         s = self.static_count
         inside = self._store.within(everything.positions[:s], anchor, self.radius)
         drawn = np.asarray(mask, bool)[:s]
+        for ins, dr, got in seen or ():
+            if np.array_equal(ins, inside) and np.array_equal(dr, drawn):
+                return got
         beyond = np.flatnonzero(drawn & ~inside)
-        return (np.flatnonzero(drawn & inside) if beyond.size else None), beyond
+        got = (np.flatnonzero(drawn & inside) if beyond.size else None), beyond
+        if seen is not None:
+            seen.append((inside, drawn, got))
+        return got
 
     def render(self, everything, centre, size: int, mask: np.ndarray, dilation: float = PROBE_DILATION,
                supersample: int = PROBE_SUPERSAMPLE) -> tuple:
