@@ -39,14 +39,16 @@ _SIGNATURE_DIFF = textwrap.dedent("""
 def test_warm_up_types_match_the_main_job(quick_demo, tmp_path):
     """In a fresh process, after warm_up() the main job dispatches no kernel signature the
     warm-up did not already create, except what it runs first itself: the reading of the prims
-    (the transform of a moved prim, the skinning of the avatar) and the light estimation (with its
-    emitters' exact visibility, dgsm_exact)."""
+    (the transform of a moved prim, the skinning of the avatar), the static part's checked copy
+    and the light estimation (with its emitters' exact visibility, dgsm_exact)."""
     r = subprocess.run(python("-c", _SIGNATURE_DIFF, str(quick_demo), str(tmp_path / "o.usdc")),
                        capture_output=True, text=True, env=child_env(USDGS_JIT_WARMUP="0"), check=True)
     extra = set(r.stdout.split())
     assert extra, "the main job must at least add the light-estimation kernels"
-    # (dgsm_model: dgsm_exact's callee, dispatched when dgsm_exact compiles rather than loads from the cache)
-    first = ("light_estimation", "grid_neighbours", "dgsm_exact", "dgsm_model", "skinning", "similarity")
+    # (dgsm_model: dgsm_exact's callee, dispatched when dgsm_exact compiles rather than loads from the cache;
+    # copy_finite: the static part's copy into the shot buffer, at the set-up)
+    first = ("light_estimation", "grid_neighbours", "dgsm_exact", "dgsm_model", "skinning", "similarity",
+             "copy_finite")
     assert all(k.split(".")[0] in first for k in extra), extra
 
 
