@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdSkel
 
+from numba_kernels.grid_neighbours import nearest
 from usd_gs.gaussians import GaussianSet, matrix_to_quaternion
 from usd_gs.io.atomic import atomic_output
 from usd_gs.pipeline import jit_warmup
@@ -116,6 +117,10 @@ def _warm_up_extra(groups, folder: Path) -> None:
         for mode in ("2", "auto"):
             ShotProcessor(str(tiny_shot(folder)), str(folder / "est.lit.usdc"),
                           ProcessOptions(lights=mode, frames="1-2")).shot_lights()
+        # the nearest-point maps (a sun estimate's values spread to every receiver, a large prim's
+        # self-shadow samples), which the tiny shot's sun does not reach
+        pts = random_gaussians(64, 0, seed=3).positions
+        nearest(pts[::4], pts)
         _mark("estimate")
     if "skin" in groups:  # usd_gs.usd.skel: linear blend and dual quaternions, world and prim-local
         stage = open_stage(str(tiny_shot(folder)))
