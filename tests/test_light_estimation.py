@@ -321,6 +321,9 @@ def test_point_and_planar_estimates_share_one_roi_through_the_blocks(scene_deg0,
     other = replace(both, positions=both.positions.copy())
     estimate_lights(other, c, k=3, values_checked=True, blocks=blocks)
     assert len(copies) == 4  # (another owner: its own ROI, not the first scene's)
+    estimate_lights(both, c + np.array([0.5, 0.0, 0.0]), k=3, values_checked=True, blocks=blocks)
+    estimate_lights(both, c, k=3, values_checked=True, blocks=blocks)
+    assert len(copies) == 6  # (only the last region is kept: a per-frame estimate keeps one copy)
 
 
 def test_alpha_weighted_centroid():

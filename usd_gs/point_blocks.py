@@ -68,7 +68,7 @@ class PointBlocks:
         self._spheres = None
         self._reach: dict = {}  # factor -> block_reach of the scales the first call gave
         self._scale_bound = None  # block_scale_bound of the scales the first cull_bounds call gave
-        self._memo: dict = {}  # key -> (owner, value): memo()
+        self._memo: tuple | None = None  # (key, owner, value): memo()'s last value
         self._lock = threading.Lock()
 
     def _spheres_of(self, positions: np.ndarray):
@@ -78,17 +78,18 @@ class PointBlocks:
             return self._spheres
 
     def memo(self, key, owner, compute):
-        """``compute()`` once per hashable ``key`` and ``owner`` (the object the value is derived from,
-        e.g. the point set: a later call with another owner computes again and keeps its own): values
-        that several callers derive from these same rows, such as the light estimate's region of
-        interest that two estimates ask for. The value is shared: callers must not modify it."""
+        """``compute()``, or the value the last call computed where it had the same hashable ``key``
+        and the same ``owner`` (the object the value is derived from, e.g. the point set): a value
+        that consecutive callers derive from these same rows, such as the light estimate's region
+        of interest that its two estimates ask for. Only the last value is kept (an estimate per
+        frame does not pile up a copy per frame); it is shared: callers must not modify it."""
         with self._lock:
-            hit = self._memo.get(key)
-        if hit is not None and hit[0] is owner:
-            return hit[1]
+            hit = self._memo
+        if hit is not None and hit[0] == key and hit[1] is owner:
+            return hit[2]
         value = compute()
         with self._lock:
-            self._memo[key] = (owner, value)
+            self._memo = (key, owner, value)
         return value
 
     @classmethod
