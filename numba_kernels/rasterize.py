@@ -230,6 +230,24 @@ def _sh_color(sh, g, dx, dy, dz):
     return (r if r > 0.0 else 0.0), (gg if gg > 0.0 else 0.0), (b if b > 0.0 else 0.0)
 
 
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _centre_and_bounds(x, y, z, smax, fx, fy, cx, cy, l0, l1, l2, l3, dilation):
+    """``(u, v, ax, ay)``: the projected centre and the squared half-extent bounds along u and v
+    before the support factor (``_cull``'s docstring: ``smax^2 |J_row|^2 + dilation`` with the
+    Jacobian's guard-band clamp ``l0..l3``), written without branches for the vectorised passes."""
+    iz = 1.0 / z
+    u = fx * x * iz + cx
+    v = fy * y * iz + cy
+    xi = x * iz
+    yi = y * iz
+    tx = xi if xi > l0 else l0
+    tx = tx if tx < l1 else l1
+    ty = yi if yi > l2 else l2
+    ty = ty if ty < l3 else l3
+    s2 = smax * smax
+    return u, v, s2 * (fx * iz) ** 2 * (1.0 + tx * tx) + dilation, s2 * (fy * iz) ** 2 * (1.0 + ty * ty) + dilation
+
+
 @njit(cache=True, fastmath=False, error_model="numpy")
 def _early_pass(m, px_, py_, pz_, smax_, cams, k, width, height, sdil, dilation, out):
     """``out[j]``: camera ``k`` keeps rows ``j < m`` of the gathered centres and largest scales
@@ -254,18 +272,7 @@ def _early_pass(m, px_, py_, pz_, smax_, cams, k, width, height, sdil, dilation,
         vy = fy * y + cy * z
         keep = (z > near) & (z <= far)
         keep = keep & ~((ux + ez < 0.5 * z) | (ux - ez > wr * z) | (vy + ez < 0.5 * z) | (vy - ez > hr * z))
-        iz = 1.0 / z
-        u = fx * x * iz + cx
-        v = fy * y * iz + cy
-        xi = x * iz
-        yi = y * iz
-        tx = xi if xi > l0 else l0
-        tx = tx if tx < l1 else l1
-        ty = yi if yi > l2 else l2
-        ty = ty if ty < l3 else l3
-        s2 = smax * smax
-        ax = s2 * (fx * iz) ** 2 * (1.0 + tx * tx) + dilation
-        ay = s2 * (fy * iz) ** 2 * (1.0 + ty * ty) + dilation
+        u, v, ax, ay = _centre_and_bounds(x, y, z, smax, fx, fy, cx, cy, l0, l1, l2, l3, dilation)
         miss = _misses_centres(u, ax) | _misses_centres(v, ay)
         out[j] = keep & ~miss
 
@@ -285,18 +292,7 @@ def _support_pass(m, px_, py_, pz_, smax_, qcut_, cams, k, width, height, dilati
         z = c6 * px + c7 * py + c8 * pz + t2
         x = c0 * px + c1 * py + c2 * pz + t0
         y = c3 * px + c4 * py + c5 * pz + t1
-        iz = 1.0 / z
-        u = fx * x * iz + cx
-        v = fy * y * iz + cy
-        xi = x * iz
-        yi = y * iz
-        tx = xi if xi > l0 else l0
-        tx = tx if tx < l1 else l1
-        ty = yi if yi > l2 else l2
-        ty = ty if ty < l3 else l3
-        s2 = smax * smax
-        ax = s2 * (fx * iz) ** 2 * (1.0 + tx * tx) + dilation
-        ay = s2 * (fy * iz) ** 2 * (1.0 + ty * ty) + dilation
+        u, v, ax, ay = _centre_and_bounds(x, y, z, smax, fx, fy, cx, cy, l0, l1, l2, l3, dilation)
         ebx = math.sqrt(qcut * ax) * (1.0 + 1e-6) + 1e-6
         eby = math.sqrt(qcut * ay) * (1.0 + 1e-6) + 1e-6
         j0, j1 = _pixel_range(u, ebx, width)

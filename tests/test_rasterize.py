@@ -151,9 +151,9 @@ def _full_cull_bits(pos, scales, opac, cams, width, height, dilation, guard=1.3)
     for k, cam in enumerate(cams):
         vr, vt = cam.view_matrix()
         fx, fy, cx, cy = cam.intrinsics()
-        v = p @ np.asarray(vr).T + vt
-        x, y, z = v[:, 0], v[:, 1], v[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # (rows with a NaN or infinite centre)
+            v = p @ np.asarray(vr).T + vt
+            x, y, z = v[:, 0], v[:, 1], v[:, 2]
             iz = 1.0 / z
             hx, hy = 0.5 * width / fx, 0.5 * height / fy
             mx, my = (0.5 * width - cx) / fx, (0.5 * height - cy) / fy
