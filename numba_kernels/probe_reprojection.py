@@ -26,7 +26,7 @@ from numba import njit
 from .cubemap_dirs import FACE_FRAMES
 from .direction_zbuffer import _own_texel_depth, _splat
 from .jit_options import threaded
-from .sh_real import NORM, sh_eval_dir
+from .sh_real import NORM, sh_eval_dirs
 from .thread_chunks import run_chunks
 
 
@@ -35,6 +35,11 @@ def _reproject(k0, k1, points, p, nrm, d, r, w, cos_c, lum, degree, norm, occl_s
                max_ratio, disc, min_splat_cos, same_layer, out):
     nt = p.shape[0]
     nb = (degree + 1) * (degree + 1)
+    # the basis of every texel's direction at once (sh_eval_dirs: sh_eval_dir's values bit for bit)
+    basis = np.empty((nb, nt))
+    dx, dy, dz = np.empty(nt), np.empty(nt), np.empty(nt)
+    cm, sm, q1, q2 = np.empty(nt), np.empty(nt), np.empty(nt), np.empty(nt)
+    lw = np.empty((3, nt))
     for k in range(k0, k1):
         x0, x1, x2 = points[k, 0], points[k, 1], points[k, 2]
         dn = np.empty((nt, 3))
@@ -50,6 +55,7 @@ def _reproject(k0, k1, points, p, nrm, d, r, w, cos_c, lum, degree, norm, occl_s
                 dn[t, 0], dn[t, 1], dn[t, 2] = v0 / dd, v1 / dd, v2 / dd
             else:
                 dn[t, 0], dn[t, 1], dn[t, 2] = d[t, 0], d[t, 1], d[t, 2]
+            dx[t], dy[t], dz[t] = dn[t, 0], dn[t, 1], dn[t, 2]
             cos_x = -(nrm[t, 0] * dn[t, 0] + nrm[t, 1] * dn[t, 1] + nrm[t, 2] * dn[t, 2])
             ratio = min((max(cos_x, 0.0) + min_cos) / (cos_c[t] + min_cos), max_ratio)
             wx[t] = w[t] * ((r[t] / dd) ** 2 * ratio) if ok else 0.0
@@ -63,19 +69,18 @@ def _reproject(k0, k1, points, p, nrm, d, r, w, cos_c, lum, degree, norm, occl_s
             for t in range(nt):
                 if own[t] * (1.0 + same_layer) < dist[t]:
                     wx[t] = 0.0
-        basis = np.empty(nb)
-        acc = np.zeros((nb, 3))
+        sh_eval_dirs(dx, dy, dz, degree, norm, basis, cm, sm, q1, q2)
         for t in range(nt):
-            if wx[t] == 0.0:
-                continue
-            sh_eval_dir(dn[t, 0], dn[t, 1], dn[t, 2], degree, norm, basis)
-            l0, l1, l2 = lum[t, 0] * wx[t], lum[t, 1] * wx[t], lum[t, 2] * wx[t]
-            for b in range(nb):
-                acc[b, 0] += basis[b] * l0
-                acc[b, 1] += basis[b] * l1
-                acc[b, 2] += basis[b] * l2
+            lw[0, t], lw[1, t], lw[2, t] = lum[t, 0] * wx[t], lum[t, 1] * wx[t], lum[t, 2] * wx[t]
+        # each coefficient's sum over the texels in texel order (the order of a texel-major loop)
         for b in range(nb):
-            out[k, b, 0], out[k, b, 1], out[k, b, 2] = acc[b, 0], acc[b, 1], acc[b, 2]
+            a0 = a1 = a2 = 0.0
+            for t in range(nt):
+                if wx[t] != 0.0:
+                    a0 += basis[b, t] * lw[0, t]
+                    a1 += basis[b, t] * lw[1, t]
+                    a2 += basis[b, t] * lw[2, t]
+            out[k, b, 0], out[k, b, 1], out[k, b, 2] = a0, a1, a2
 
 
 def reproject_probes(points, patch_points, normals, dirs, dist, weight, cos_c, radiance, degree: int,

@@ -140,6 +140,71 @@ def sh_eval_dir(x, y, z, degree, norm, out):
 
 
 @njit(cache=True, fastmath=False)
+def sh_eval_dirs(x, y, z, degree, norm, out, cm, sm, p1, p2):
+    """:func:`sh_eval_dir` of G directions, bit for bit: ``out[k, g]`` (float64) is its ``out[k]``
+    for direction g (the same operations in the same order), with the inner loops over the G
+    directions (independent: they vectorise). x, y, z: (G,) unit-vector components; out: (>=
+    (degree+1)^2, G); cm, sm, p1, p2: (G,) float64 scratch. (:func:`sh_eval_batch` groups some
+    products differently, so its values may differ in the last bit.)"""
+    g_n = x.shape[0]
+    for g in range(g_n):
+        cm[g] = 1.0
+        sm[g] = 0.0
+    pmm = 1.0
+    for m in range(degree + 1):
+        if m > 0:
+            pmm *= 2.0 * m - 1.0
+            for g in range(g_n):
+                c_new = x[g] * cm[g] - y[g] * sm[g]
+                sm[g] = x[g] * sm[g] + y[g] * cm[g]
+                cm[g] = c_new
+        _store_dirs(out, m, m, pmm, cm, sm, norm, g_n)
+        if m < degree:
+            for g in range(g_n):
+                p2[g] = pmm
+                p1[g] = z[g] * (2.0 * m + 1.0) * pmm
+            _store_dirs_p(out, m + 1, m, p1, cm, sm, norm, g_n)
+            for l in range(m + 2, degree + 1):
+                ra = _RA[l, m]
+                rb = _RB[l, m]
+                for g in range(g_n):
+                    p = ra * z[g] * p1[g] - rb * p2[g]
+                    p2[g] = p1[g]
+                    p1[g] = p
+                _store_dirs_p(out, l, m, p1, cm, sm, norm, g_n)
+
+
+@njit(cache=True, fastmath=False)
+def _store_dirs(out, l, m, p, cm, sm, norm, g_n):
+    """:func:`_store` of one value ``p`` (the same for every direction) into column g of ``out``."""
+    base = l * l + l
+    if m == 0:
+        v = norm[l, 0] * p
+        for g in range(g_n):
+            out[base, g] = v
+    else:
+        c = norm[l, m] * p
+        for g in range(g_n):
+            out[base + m, g] = c * cm[g]
+            out[base - m, g] = c * sm[g]
+
+
+@njit(cache=True, fastmath=False)
+def _store_dirs_p(out, l, m, p, cm, sm, norm, g_n):
+    """:func:`_store` of ``p[g]`` into column g of ``out``."""
+    base = l * l + l
+    n = norm[l, m]
+    if m == 0:
+        for g in range(g_n):
+            out[base, g] = n * p[g]
+    else:
+        for g in range(g_n):
+            c = n * p[g]
+            out[base + m, g] = c * cm[g]
+            out[base - m, g] = c * sm[g]
+
+
+@njit(cache=True, fastmath=False)
 def sh_eval_batch(x, y, z, degree, norm, out, cm, sm, p1, p2):
     """RH basis for G directions at once (structure of arrays): ``out[k, g]`` (float64).
 

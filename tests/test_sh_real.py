@@ -120,3 +120,22 @@ def test_batch_evaluation_matches_scipy():
     out3 = np.full((16, g), np.nan)
     sh_real.sh_eval_batch(d[:, 0].copy(), d[:, 1].copy(), d[:, 2].copy(), 3, sh_real.NORM, out3, *scratch)
     np.testing.assert_allclose(out3.T, _scipy_real_sh(d, 3), atol=1e-12)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3, 4, 8])
+def test_directions_at_once_are_sh_eval_dir_bit_for_bit(degree):
+    """``sh_eval_dirs`` (the directions' inner loops, for the probe reprojection) gives
+    ``sh_eval_dir``'s values bit for bit, poles and axis directions included, and the reference
+    basis within rounding; it writes only the first (degree+1)^2 rows."""
+    d = _random_dirs(301, 9 + degree)
+    d[:5] = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 1e-300, 1.0]]
+    nb = (degree + 1) ** 2
+    out = np.full((nb + 3, len(d)), 7.0)
+    scratch = [np.empty(len(d)) for _ in range(4)]
+    sh_real.sh_eval_dirs(d[:, 0].copy(), d[:, 1].copy(), d[:, 2].copy(), degree, sh_real.NORM, out, *scratch)
+    one = np.empty(nb)
+    for i, (x, y, z) in enumerate(d):
+        sh_real.sh_eval_dir(x, y, z, degree, sh_real.NORM, one)
+        assert np.array_equal(out[:nb, i].view(np.uint64), one.view(np.uint64)), i
+    assert np.all(out[nb:] == 7.0)
+    np.testing.assert_allclose(out[:nb].T, _scipy_real_sh(d, degree), atol=1e-12)
