@@ -139,69 +139,14 @@ def sh_eval_dir(x, y, z, degree, norm, out):
                 _store(out, l, m, p, cm, sm, norm)
 
 
-@njit(cache=True, fastmath=False)
-def sh_eval_dirs(x, y, z, degree, norm, out, cm, sm, p1, p2):
-    """:func:`sh_eval_dir` of G directions, bit for bit: ``out[k, g]`` (float64) is its ``out[k]``
-    for direction g (the same operations in the same order), with the inner loops over the G
-    directions (independent: they vectorise). x, y, z: (G,) unit-vector components; out: (>=
-    (degree+1)^2, G); cm, sm, p1, p2: (G,) float64 scratch. (:func:`sh_eval_batch` groups some
-    products differently, so its values may differ in the last bit.)"""
-    g_n = x.shape[0]
+@njit(cache=True, fastmath=False, inline="always")
+def _times_x_plus_iy(x, y, cm, sm, g_n):
+    """``cm + i sm <- (x + i y) (cm + i sm)`` for each of the G directions: Re and Im of the next
+    power of ``x + i y`` (the azimuthal factor of the next order m)."""
     for g in range(g_n):
-        cm[g] = 1.0
-        sm[g] = 0.0
-    pmm = 1.0
-    for m in range(degree + 1):
-        if m > 0:
-            pmm *= 2.0 * m - 1.0
-            for g in range(g_n):
-                c_new = x[g] * cm[g] - y[g] * sm[g]
-                sm[g] = x[g] * sm[g] + y[g] * cm[g]
-                cm[g] = c_new
-        _store_dirs(out, m, m, pmm, cm, sm, norm, g_n)
-        if m < degree:
-            for g in range(g_n):
-                p2[g] = pmm
-                p1[g] = z[g] * (2.0 * m + 1.0) * pmm
-            _store_dirs_p(out, m + 1, m, p1, cm, sm, norm, g_n)
-            for l in range(m + 2, degree + 1):
-                ra = _RA[l, m]
-                rb = _RB[l, m]
-                for g in range(g_n):
-                    p = ra * z[g] * p1[g] - rb * p2[g]
-                    p2[g] = p1[g]
-                    p1[g] = p
-                _store_dirs_p(out, l, m, p1, cm, sm, norm, g_n)
-
-
-@njit(cache=True, fastmath=False)
-def _store_dirs(out, l, m, p, cm, sm, norm, g_n):
-    """:func:`_store` of one value ``p`` (the same for every direction) into column g of ``out``."""
-    base = l * l + l
-    if m == 0:
-        v = norm[l, 0] * p
-        for g in range(g_n):
-            out[base, g] = v
-    else:
-        c = norm[l, m] * p
-        for g in range(g_n):
-            out[base + m, g] = c * cm[g]
-            out[base - m, g] = c * sm[g]
-
-
-@njit(cache=True, fastmath=False)
-def _store_dirs_p(out, l, m, p, cm, sm, norm, g_n):
-    """:func:`_store` of ``p[g]`` into column g of ``out``."""
-    base = l * l + l
-    n = norm[l, m]
-    if m == 0:
-        for g in range(g_n):
-            out[base, g] = n * p[g]
-    else:
-        for g in range(g_n):
-            c = n * p[g]
-            out[base + m, g] = c * cm[g]
-            out[base - m, g] = c * sm[g]
+        c_new = x[g] * cm[g] - y[g] * sm[g]
+        sm[g] = x[g] * sm[g] + y[g] * cm[g]
+        cm[g] = c_new
 
 
 @njit(cache=True, fastmath=False)
@@ -210,20 +155,32 @@ def sh_eval_batch(x, y, z, degree, norm, out, cm, sm, p1, p2):
 
     x, y, z: (G,) unit-vector components; out: (>= (degree+1)^2, G); cm, sm, p1, p2: (G,)
     float64 scratch. Same recurrence as :func:`sh_eval_dir`, with the inner loops over the G
-    directions (independent, SIMD-friendly) instead of one dependency chain per direction.
+    directions (independent, SIMD-friendly) instead of one dependency chain per direction; the
+    seed ``Pbar_{m+1}^m`` is grouped as ``z ((2m+1) Pbar_m^m)``, so values may differ from
+    :func:`sh_eval_dir`'s in the last bit (:func:`sh_eval_dirs` keeps its grouping).
     """
+    _sh_eval_columns(x, y, z, degree, norm, out, cm, sm, p1, p2, False)
+
+
+@njit(cache=True, fastmath=False)
+def sh_eval_dirs(x, y, z, degree, norm, out, cm, sm, p1, p2):
+    """:func:`sh_eval_dir` of G directions, bit for bit: ``out[k, g]`` (float64) is its ``out[k]``
+    for direction g (the same operations in the same order), with the inner loops over the G
+    directions (they vectorise); arguments as :func:`sh_eval_batch`'s."""
+    _sh_eval_columns(x, y, z, degree, norm, out, cm, sm, p1, p2, True)
+
+
+@njit(cache=True, fastmath=False)
+def _sh_eval_columns(x, y, z, degree, norm, out, cm, sm, p1, p2, seed_as_dir):
+    """:func:`sh_eval_batch` (``seed_as_dir`` False) or :func:`sh_eval_dirs` (True)."""
     g_n = x.shape[0]
-    for g in range(g_n):
-        cm[g] = 1.0
-        sm[g] = 0.0
+    cm[:g_n] = 1.0
+    sm[:g_n] = 0.0
     pmm = 1.0
     for m in range(degree + 1):
         if m > 0:
             pmm *= 2.0 * m - 1.0
-            for g in range(g_n):
-                c_new = x[g] * cm[g] - y[g] * sm[g]
-                sm[g] = x[g] * sm[g] + y[g] * cm[g]
-                cm[g] = c_new
+            _times_x_plus_iy(x, y, cm, sm, g_n)
         base = m * m + m
         nm = norm[m, m] * pmm
         if m == 0:
@@ -237,9 +194,14 @@ def sh_eval_batch(x, y, z, degree, norm, out, cm, sm, p1, p2):
             f = (2.0 * m + 1.0) * pmm
             base = (m + 1) * (m + 1) + (m + 1)
             nl = norm[m + 1, m]
-            for g in range(g_n):
-                p2[g] = pmm
-                p1[g] = z[g] * f
+            if seed_as_dir:  # (sh_eval_dir's grouping)
+                for g in range(g_n):
+                    p2[g] = pmm
+                    p1[g] = z[g] * (2.0 * m + 1.0) * pmm
+            else:
+                for g in range(g_n):
+                    p2[g] = pmm
+                    p1[g] = z[g] * f
             if m == 0:
                 for g in range(g_n):
                     out[base, g] = nl * p1[g]
