@@ -340,21 +340,14 @@ def _cull(i0_, i1_, positions, scales, opacities, include, order, cams, width, h
     sdil = math.sqrt(max(dilation, 0.0))
     nb = bstart.shape[0] - 1
     every = (np.int64(1) << ncam) - 1
-    rows = np.empty(_CULL_ROWS, np.int64)  # the entries of the rows gathered
-    px = np.empty(_CULL_ROWS)
-    py = np.empty(_CULL_ROWS)
-    pz = np.empty(_CULL_ROWS)
-    smax = np.empty(_CULL_ROWS)
-    op = np.empty(_CULL_ROWS)
-    bits = np.empty(_CULL_ROWS, np.int64)
+    # the gathered rows' columns (centre x, y, z, largest scale, opacity) and, gathered again, those
+    # of the rows some camera kept (centre, largest scale, support cut); their entries, bits, positions
+    cols = np.empty((5, _CULL_ROWS))
+    px, py, pz, smax, op = cols[0], cols[1], cols[2], cols[3], cols[4]
+    kept_cols = np.empty((5, _CULL_ROWS))
+    qx, qy, qz, qs, qcut = kept_cols[0], kept_cols[1], kept_cols[2], kept_cols[3], kept_cols[4]
+    rows, bits, at = np.empty(_CULL_ROWS, np.int64), np.empty(_CULL_ROWS, np.int64), np.empty(_CULL_ROWS, np.int64)
     passed = np.empty(_CULL_ROWS, np.bool_)
-    # the rows some camera kept, gathered again for the full bound
-    at = np.empty(_CULL_ROWS, np.int64)
-    qx = np.empty(_CULL_ROWS)
-    qy = np.empty(_CULL_ROWS)
-    qz = np.empty(_CULL_ROWS)
-    qs = np.empty(_CULL_ROWS)
-    qcut = np.empty(_CULL_ROWS)
     blk = np.searchsorted(bstart, i0_, side="right") - 1 if nb > 0 else -1
     e = i0_
     while e < i1_:
